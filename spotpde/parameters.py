@@ -1,0 +1,107 @@
+"""Typed physical parameters of a case: the orifice, the spots, the tracer.
+
+These are what :mod:`spotpde.cases` produces from a TOML case and what the solvers
+consume; they hold no numerics. Coefficients that may vary in space accept either a
+float or an array of the grid's shape (array order ``(z, x)`` / ``(z, y, x)``).
+Units: lengths in particle diameters d, times in the case's time unit (one unit of
+``t`` is the time in which a spot rises ``v_s`` diameters).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Union
+
+import numpy as np
+
+Coefficient = Union[float, np.ndarray]
+
+PROFILES = ("uniform", "gaussian")
+SPOT_MODES = ("steady", "transient")
+TRACER_MODELS = ("spot", "void")
+
+
+@dataclass(frozen=True)
+class Orifice:
+    """Spot source on the floor ``z = z0``.
+
+    Args:
+        x: centre in d.
+        width: 0 for a point source; slot width W (``uniform``) or two standard
+            deviations (``gaussian``). In 3D the orifice is a disk of diameter
+            ``width`` (or a radially Gaussian source) centred at ``(x, y)``.
+        profile: ``"uniform"`` or ``"gaussian"``.
+        rate: Q0 in spots per unit time; a constant, or for transient runs a
+            callable ``Q0(t)``.
+        y: 3D only: centre in y (default: the middle of the y extent).
+    """
+
+    x: float = 0.0
+    width: float = 0.0
+    profile: str = "uniform"
+    rate: Union[float, Callable[[float], float]] = 1.0
+    y: float | None = None
+
+    def rate_at(self, t: float) -> float:
+        """Q0(t) in spots per unit time."""
+        return float(self.rate(t)) if callable(self.rate) else float(self.rate)
+
+
+@dataclass(frozen=True)
+class Spots:
+    """Spot dynamics: drift ``v_s`` (up), diffusion lengths ``b`` and ``b_par``.
+
+    ``D_perp = b * v_s`` (per horizontal component) and ``D_par = b_par * v_s``,
+    in d**2 per unit time. Each may be a float or a grid-shaped array.
+    """
+
+    drift: Coefficient = 1.0
+    b: Coefficient = 1.3
+    b_par: Coefficient = 0.0
+    mode: str = "steady"
+    t_end: float = 0.0
+
+    @property
+    def D_perp(self) -> Coefficient:
+        return self.b * self.drift
+
+    @property
+    def D_par(self) -> Coefficient:
+        return self.b_par * self.drift
+
+    @property
+    def is_uniform(self) -> bool:
+        """True when drift, b and b_par are all constants."""
+        return not _is_array(self.drift, self.b, self.b_par)
+
+
+@dataclass(frozen=True)
+class TracerStart:
+    """Initial tracer density: a Gaussian blob or horizontal layers.
+
+    Args:
+        kind: ``"blob"`` or ``"layers"``.
+        x, z, width: blob centre and standard deviation in d (3D: y at the orifice's y).
+        spacing: layers: bands ``[k*spacing, k*spacing + spacing/2)`` in z carry P.
+    """
+
+    kind: str = "blob"
+    x: float = 0.0
+    z: float = 0.0
+    width: float = 1.0
+    spacing: float = 10.0
+    y: float | None = None
+
+
+@dataclass(frozen=True)
+class Tracer:
+    """Tracer propagator run: model, initial density, duration, number of frames."""
+
+    model: str = "spot"
+    start: TracerStart = field(default_factory=TracerStart)
+    t_end: float = 100.0
+    frames: int = 20
+
+
+def _is_array(*values) -> bool:
+    return any(np.ndim(v) > 0 for v in values)
