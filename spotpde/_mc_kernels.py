@@ -1,0 +1,397 @@
+"""Numba kernels of the discrete spot-model Monte Carlo (private; see ``montecarlo``).
+
+Everything here is 2D ``(x, z)``. State lives in plain arrays owned by
+:class:`spotpde.montecarlo._State`; :func:`advance` moves it forward by whole ticks so
+that the Python driver can report progress and stop between chunks.
+
+Packed parameters (``fp``: float64, ``ip``: int64), indices given by the constants below.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+# -- float parameters -------------------------------------------------------------------
+F_X0, F_X1, F_Z0, F_Z1 = 0, 1, 2, 3            # box
+F_XC, F_WIDTH, F_RATE = 4, 5, 6                # orifice centre, width, Q0 * dt (mean spots per tick)
+F_STEP, F_SIGX, F_SIGZ, F_GAMMA = 7, 8, 9, 10  # Delta, sqrt(2 b0 Delta), sqrt(2 b_par Delta), gamma
+F_LAM = 11                                     # rule lam
+F_KSIZE, F_KSIZEV, F_KAMP = 12, 13, 14         # kernel horizontal size, vertical size, amplitude
+F_REACHH, F_REACHV = 15, 16                    # kernel support half-widths (x, z)
+F_CELL, F_SKIN = 17, 18                        # particle cell size, skin
+F_PX0, F_PZ0, F_PH = 19, 20, 21                # probe grid origin (first centre) and spacing
+F_DT = 22                                      # time per tick
+NF = 23
+# -- int parameters ---------------------------------------------------------------------
+I_SHAPE, I_PROFILE, I_WALLS, I_STEPS = 0, 1, 2, 3
+I_NCX, I_NCZ = 4, 5                            # particle cells
+I_PNX, I_PNZ = 6, 7                            # probe grid
+I_NBATCH, I_TICKS_TOTAL = 8, 9
+I_PROBES = 10                                  # 1: accumulate probe fields
+NI = 11
+# -- kernel shapes, orifice profiles, walls, step kinds -------------------------------------
+SHAPE_UNIFORM, SHAPE_GAUSSIAN, SHAPE_EXPONENTIAL = 0, 1, 2
+PROFILE_POINT, PROFILE_UNIFORM, PROFILE_GAUSSIAN = 0, 1, 2
+WALLS_REFLECTING, WALLS_OPEN = 0, 1
+STEPS_GAUSSIAN, STEPS_BINARY = 0, 1
+# -- counters (int64 array ``cnt``) ---------------------------------------------------------
+C_TICK, C_INJECTED, C_STEPS, C_UPDATES, C_NACTIVE, C_PENDING, C_REBUILDS, C_REMOVED = range(8)
+NC = 8
+# -- particle status ------------------------------------------------------------------------
+P_IN, P_ORIFICE, P_SIDE = 0, 1, 2
+
+
+@njit(cache=True)
+def seed(s):
+    """Seed numba's generator (legacy ``np.random`` inside nopython code)."""
+    np.random.seed(s)
+
+
+@njit(cache=True, inline="always")
+def kernel_w(shape, dx, dz, size, size_v, amp, reach_h, reach_v):
+    """Influence ``w`` at offset ``(dx, dz)`` (d) from the spot centre.
+
+    Uniform: ``amp`` inside the ellipse ``(dx/size)^2 + (dz/size_v)^2 < 1``.
+    Gaussian: ``amp exp(-(dx/size)^2/2 - (dz/size_v)^2/2)``.
+    Exponential: ``amp exp(-sqrt((dx/size)^2 + (dz/size_v)^2))``.
+    Gaussian and exponential are cut off outside the ellipse of half-axes ``reach``.
+    """
+    if abs(dx) > reach_h or abs(dz) > reach_v:
+        return 0.0
+    if shape == SHAPE_UNIFORM:
+        q = (dx / size) ** 2 + (dz / size_v) ** 2
+        return amp if q < 1.0 else 0.0
+    if (dx / reach_h) ** 2 + (dz / reach_v) ** 2 > 1.0:
+        return 0.0
+    if shape == SHAPE_GAUSSIAN:
+        return amp * math.exp(-0.5 * ((dx / size) ** 2 + (dz / size_v) ** 2))
+    return amp * math.exp(-math.sqrt((dx / size) ** 2 + (dz / size_v) ** 2))
+
+
+@njit(cache=True)
+def kernel_eval(shape, x, z, size, size_v, amp, reach_h, reach_v):
+    """Vectorised :func:`kernel_w` over arrays ``x``, ``z`` (for tests)."""
+    out = np.empty(x.size)
+    xf = x.ravel()
+    zf = z.ravel()
+    for i in range(xf.size):
+        out[i] = kernel_w(shape, xf[i], zf[i], size, size_v, amp, reach_h, reach_v)
+    return out
+
+
+@njit(cache=True)
+def build_cells(px, pz, status, x0, z0, cell, ncx, ncz, cell_start, cell_idx):
+    """Counting sort of the particles still in the box into cells of size ``cell``.
+
+    Particles outside the cell range are clamped into the edge cells (queries clamp the
+    same way, so nobody within reach is missed).
+    """
+    ncell = ncx * ncz
+    for c in range(ncell + 1):
+        cell_start[c] = 0
+    n = px.size
+    cid = np.empty(n, np.int64)
+    for i in range(n):
+        if status[i] != P_IN:
+            cid[i] = -1
+            continue
+        cx = int(math.floor((px[i] - x0) / cell))
+        cz = int(math.floor((pz[i] - z0) / cell))
+        cx = min(max(cx, 0), ncx - 1)
+        cz = min(max(cz, 0), ncz - 1)
+        c = cz * ncx + cx
+        cid[i] = c
+        cell_start[c + 1] += 1
+    for c in range(ncell):
+        cell_start[c + 1] += cell_start[c]
+    fill = cell_start[:ncell].copy()
+    for i in range(n):
+        c = cid[i]
+        if c >= 0:
+            cell_idx[fill[c]] = i
+            fill[c] += 1
+
+
+@njit(cache=True)
+def _inject_x(profile, xc, width):
+    if profile == PROFILE_POINT:
+        return xc
+    if profile == PROFILE_UNIFORM:
+        return xc + width * (np.random.random() - 0.5)
+    return xc + 0.5 * width * np.random.standard_normal()
+
+
+@njit(cache=True)
+def advance(fp, ip, cnt, n_ticks,
+            sx, sz, sxi,
+            px, pz, status, moved, cell_start, cell_idx,
+            track_slot, tpos, rec_ticks, levels, lev_next, cross_x, cross_t, exit_x, exit_t,
+            probe, rho_hist):
+    """Advance the simulation by at most ``n_ticks`` ticks.
+
+    Each tick (duration ``dt = Delta / v_s``): inject ``Poisson(Q0 dt)`` spots on the floor,
+    then every active spot makes one step ``dR = (dx, dz)``; each particle within reach of
+    ``r_s + lam dR`` moves by ``-w(r_p - r_s - lam dR) dR`` (eq. discrete, general rule).
+    Returns early (with ``cnt[C_PENDING]`` set) when the spot arrays are full.
+
+    Args:
+        fp, ip: packed parameters. cnt: counters (updated in place).
+        sx, sz, sxi: spot positions and persistent unit step variable.
+        px, pz, status, moved: particle positions, status, displacement since binning.
+        cell_start, cell_idx: particle cell list.
+        track_slot: per particle, its tracked index or -1. tpos: (n_rec, n_tracked, 2)
+            snapshots taken at the end of the ticks listed in ``rec_ticks`` (sorted).
+        levels, lev_next, cross_x, cross_t: crossing heights (ascending), per tracked
+            particle the index of the next level below, and the crossing x / time.
+        exit_x, exit_t: where/when each particle left through the orifice.
+        probe: (5, n_batch, pnz, pnx) sums of u_x dt, u_z dt, and the step covariance
+            products w^2 (dR - <dR>)(dR - <dR>)^T for D_xx, D_xz, D_zz.
+        rho_hist: (n_batch, pnz, pnx) spot-count histogram (one sample per spot per tick).
+
+    Returns:
+        Number of ticks done.
+    """
+    x0 = fp[F_X0]; x1 = fp[F_X1]; z0 = fp[F_Z0]; z1 = fp[F_Z1]
+    xc = fp[F_XC]; width = fp[F_WIDTH]; rate = fp[F_RATE]
+    step = fp[F_STEP]; sigx = fp[F_SIGX]; sigz = fp[F_SIGZ]; gamma = fp[F_GAMMA]
+    lam = fp[F_LAM]
+    ksize = fp[F_KSIZE]; ksizev = fp[F_KSIZEV]; kamp = fp[F_KAMP]
+    rh = fp[F_REACHH]; rv = fp[F_REACHV]
+    cell = fp[F_CELL]; skin = fp[F_SKIN]
+    pxo = fp[F_PX0]; pzo = fp[F_PZ0]; ph = fp[F_PH]
+    dt = fp[F_DT]
+    shape = ip[I_SHAPE]; profile = ip[I_PROFILE]; walls = ip[I_WALLS]; steps = ip[I_STEPS]
+    ncx = ip[I_NCX]; ncz = ip[I_NCZ]; pnx = ip[I_PNX]; pnz = ip[I_PNZ]
+    nbatch = ip[I_NBATCH]; ticks_total = ip[I_TICKS_TOTAL]; use_probes = ip[I_PROBES]
+    cap = sx.size
+    fresh = math.sqrt(1.0 - gamma * gamma)
+    keep_p = 0.5 * (1.0 + gamma)
+    n_rec = rec_ticks.size
+    n_levels = levels.size
+    npart = px.size
+    ex = np.empty(max(pnx, 1))
+    ez = np.empty(max(pnz, 1))
+    maxmoved = 0.0
+    for i in range(npart):
+        if moved[i] > maxmoved:
+            maxmoved = moved[i]
+
+    done = 0
+    while done < n_ticks:
+        tick = cnt[C_TICK]
+        t_mid = (tick + 0.5) * dt
+        batch = min(tick * nbatch // max(ticks_total, 1), nbatch - 1)
+        # ---- injection ----------------------------------------------------------------
+        if cnt[C_PENDING] >= 0:
+            n_new = cnt[C_PENDING]
+        else:
+            n_new = np.random.poisson(rate)
+        if cnt[C_NACTIVE] + n_new > cap:
+            cnt[C_PENDING] = n_new
+            return done
+        cnt[C_PENDING] = -1
+        for k in range(n_new):
+            j = cnt[C_NACTIVE]
+            sx[j] = _inject_x(profile, xc, width)
+            sz[j] = z0
+            if steps == STEPS_GAUSSIAN:
+                sxi[j] = np.random.standard_normal()
+            else:
+                sxi[j] = 1.0 if np.random.random() < 0.5 else -1.0
+            cnt[C_NACTIVE] += 1
+        cnt[C_INJECTED] += n_new
+        # ---- rebuild the particle cell list if someone may have left its cell -----------
+        if npart > 0 and maxmoved > 0.5 * skin:
+            build_cells(px, pz, status, x0, z0, cell, ncx, ncz, cell_start, cell_idx)
+            for i in range(npart):
+                moved[i] = 0.0
+            maxmoved = 0.0
+            cnt[C_REBUILDS] += 1
+        # ---- spot steps -----------------------------------------------------------------
+        j = 0
+        while j < cnt[C_NACTIVE]:
+            # horizontal step: AR(1) (Gaussian) or persistent +-1 (binary), unit variance
+            if steps == STEPS_GAUSSIAN:
+                xi = gamma * sxi[j] + fresh * np.random.standard_normal()
+            else:
+                xi = sxi[j] if np.random.random() < keep_p else -sxi[j]
+            ox = sx[j]
+            oz = sz[j]
+            nx_ = ox + sigx * xi
+            nz_ = oz + step
+            if sigz > 0.0:
+                nz_ += sigz * np.random.standard_normal()
+            remove = False
+            if nx_ < x0 or nx_ > x1:
+                if walls == WALLS_OPEN:
+                    remove = True
+                else:
+                    # reflect; the persistent direction turns around with the walk
+                    if nx_ < x0:
+                        nx_ = 2.0 * x0 - nx_
+                    if nx_ > x1:
+                        nx_ = 2.0 * x1 - nx_
+                    nx_ = min(max(nx_, x0), x1)
+                    xi = -xi
+            if nz_ < z0:
+                nz_ = 2.0 * z0 - nz_
+            sxi[j] = xi
+            dx = nx_ - ox
+            dz = nz_ - oz
+            cnt[C_STEPS] += 1
+            # centre at which the influence is evaluated
+            cx_ = ox + lam * dx
+            cz_ = oz + lam * dz
+            # ---- particles --------------------------------------------------------------
+            if npart > 0:
+                ix_lo = int(math.floor((cx_ - rh - skin - x0) / cell))
+                ix_hi = int(math.floor((cx_ + rh + skin - x0) / cell))
+                iz_lo = int(math.floor((cz_ - rv - skin - z0) / cell))
+                iz_hi = int(math.floor((cz_ + rv + skin - z0) / cell))
+                ix_lo = min(max(ix_lo, 0), ncx - 1)
+                ix_hi = min(max(ix_hi, 0), ncx - 1)
+                iz_lo = min(max(iz_lo, 0), ncz - 1)
+                iz_hi = min(max(iz_hi, 0), ncz - 1)
+                for icz in range(iz_lo, iz_hi + 1):
+                    for icx in range(ix_lo, ix_hi + 1):
+                        c = icz * ncx + icx
+                        for q in range(cell_start[c], cell_start[c + 1]):
+                            i = cell_idx[q]
+                            if status[i] != P_IN:
+                                continue
+                            w = kernel_w(shape, px[i] - cx_, pz[i] - cz_, ksize, ksizev, kamp, rh, rv)
+                            if w == 0.0:
+                                continue
+                            cnt[C_UPDATES] += 1
+                            oxp = px[i]
+                            ozp = pz[i]
+                            npx = oxp - w * dx
+                            npz = ozp - w * dz
+                            if npx < x0 or npx > x1:
+                                if walls == WALLS_OPEN:
+                                    status[i] = P_SIDE
+                                    px[i] = npx
+                                    pz[i] = npz
+                                    continue
+                                if npx < x0:
+                                    npx = 2.0 * x0 - npx
+                                if npx > x1:
+                                    npx = 2.0 * x1 - npx
+                                npx = min(max(npx, x0), x1)
+                            m = moved[i] + abs(npx - oxp) + abs(npz - ozp)
+                            moved[i] = m
+                            if m > maxmoved:
+                                maxmoved = m
+                            ts = track_slot[i]
+                            if ts >= 0:
+                                k = lev_next[ts]
+                                while k >= 0 and npz < levels[k]:
+                                    if ozp >= levels[k]:
+                                        f = (ozp - levels[k]) / (ozp - npz)
+                                        cross_x[ts, k] = oxp + f * (npx - oxp)
+                                    else:
+                                        cross_x[ts, k] = npx
+                                    cross_t[ts, k] = t_mid
+                                    k -= 1
+                                lev_next[ts] = k
+                            if npz < z0:
+                                status[i] = P_ORIFICE
+                                f = (ozp - z0) / (ozp - npz)
+                                exit_x[i] = oxp + f * (npx - oxp)
+                                exit_t[i] = t_mid
+                            px[i] = npx
+                            pz[i] = npz
+            # ---- probes (frozen particles on the measurement grid) ------------------------
+            if use_probes:
+                jx_lo = max(int(math.ceil((cx_ - rh - pxo) / ph)), 0)
+                jx_hi = min(int(math.floor((cx_ + rh - pxo) / ph)), pnx - 1)
+                jz_lo = max(int(math.ceil((cz_ - rv - pzo) / ph)), 0)
+                jz_hi = min(int(math.floor((cz_ + rv - pzo) / ph)), pnz - 1)
+                ddz = dz - step
+                if shape == SHAPE_GAUSSIAN:  # separable: 1D factors once per step
+                    for jx in range(jx_lo, jx_hi + 1):
+                        ex[jx] = math.exp(-0.5 * ((pxo + jx * ph - cx_) / ksize) ** 2)
+                    for jz in range(jz_lo, jz_hi + 1):
+                        ez[jz] = kamp * math.exp(-0.5 * ((pzo + jz * ph - cz_) / ksizev) ** 2)
+                for jz in range(jz_lo, jz_hi + 1):
+                    zz = pzo + jz * ph - cz_
+                    for jx in range(jx_lo, jx_hi + 1):
+                        if shape == SHAPE_GAUSSIAN:
+                            xx = pxo + jx * ph - cx_
+                            if (xx / rh) ** 2 + (zz / rv) ** 2 > 1.0:
+                                continue
+                            w = ex[jx] * ez[jz]
+                        else:
+                            w = kernel_w(shape, pxo + jx * ph - cx_, zz, ksize, ksizev, kamp, rh, rv)
+                        if w == 0.0:
+                            continue
+                        probe[0, batch, jz, jx] -= w * dx
+                        probe[1, batch, jz, jx] -= w * dz
+                        w2 = w * w
+                        probe[2, batch, jz, jx] += w2 * dx * dx
+                        probe[3, batch, jz, jx] += w2 * dx * ddz
+                        probe[4, batch, jz, jx] += w2 * ddz * ddz
+                # spot density sample at a uniformly random point of the step
+                u = np.random.random()
+                hx = int(math.floor((ox + u * dx - pxo) / ph + 0.5))
+                hz = int(math.floor((oz + u * dz - pzo) / ph + 0.5))
+                if 0 <= hx < pnx and 0 <= hz < pnz:
+                    rho_hist[batch, hz, hx] += 1.0
+            if remove or nz_ >= z1:
+                # swap-remove spot j (the swapped-in spot is stepped next)
+                last = cnt[C_NACTIVE] - 1
+                sx[j] = sx[last]
+                sz[j] = sz[last]
+                sxi[j] = sxi[last]
+                cnt[C_NACTIVE] = last
+                cnt[C_REMOVED] += 1
+                continue
+            sx[j] = nx_
+            sz[j] = nz_
+            j += 1
+        # ---- end of tick: snapshots ---------------------------------------------------
+        r = np.searchsorted(rec_ticks, tick)
+        if r < n_rec and rec_ticks[r] == tick:
+                for i in range(npart):
+                    ts = track_slot[i]
+                    if ts >= 0:
+                        if status[i] == P_IN:
+                            tpos[r, ts, 0] = px[i]
+                            tpos[r, ts, 1] = pz[i]
+                        else:
+                            tpos[r, ts, 0] = np.nan
+                            tpos[r, ts, 1] = np.nan
+        cnt[C_TICK] += 1
+        done += 1
+    return done
+
+
+@njit(cache=True)
+def spot_walks(n_walks, n_steps, sig, gamma, steps, seed_):
+    """Horizontal positions of ``n_walks`` free spot walks after each of ``n_steps`` steps.
+
+    The same step rule as :func:`advance` (no walls): ``xi_{n+1} = gamma xi_n +
+    sqrt(1 - gamma^2) eta`` (Gaussian) or keep the sign with probability ``(1+gamma)/2``
+    (binary); step ``sig * xi``; ``xi_0`` stationary.
+    """
+    np.random.seed(seed_)
+    out = np.empty((n_walks, n_steps))
+    fresh = math.sqrt(1.0 - gamma * gamma)
+    keep_p = 0.5 * (1.0 + gamma)
+    for k in range(n_walks):
+        if steps == STEPS_GAUSSIAN:
+            xi = np.random.standard_normal()
+        else:
+            xi = 1.0 if np.random.random() < 0.5 else -1.0
+        x = 0.0
+        for n in range(n_steps):
+            if steps == STEPS_GAUSSIAN:
+                xi = gamma * xi + fresh * np.random.standard_normal()
+            else:
+                xi = xi if np.random.random() < keep_p else -xi
+            x += sig * xi
+            out[k, n] = x
+    return out

@@ -1,0 +1,725 @@
+"""Case files: TOML in, a validated :class:`Case` out.
+
+A case is read with :mod:`tomllib` (or given as a mapping with the same keys) and
+validated completely before any work: every key's type, range and finiteness, unknown
+tables and keys, and cross-key consistency (the orifice on the floor, increasing
+ranges, a grid that divides the domain, and a grid whose arrays fit in memory,
+estimated before anything is allocated). All problems are collected and raised
+together as one :class:`spotpde.CaseError`, one line per problem, each naming the key
+by its dotted name::
+
+    spots.b: must be > 0, got -1.0
+
+Every key, its type, default, range and meaning is listed in ``docs/cases.md``.
+Lengths are in particle diameters d; times in the case's time unit.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import os
+import tomllib
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from .errors import CaseError
+from .grid import WALLS, Grid
+from .parameters import PROFILES, SPOT_MODES, TRACER_MODELS, Orifice, Spots, Tracer, TracerStart
+
+KERNEL_SHAPES = ("uniform", "gaussian", "exponential")
+#: Options of the tracer solver (``spotpde.tracer.solve``).
+LIMITERS = ("koren", "vanleer", "mc", "minmod", "weno5", "upwind")
+DIFFUSION_MODES = ("auto", "explicit", "implicit")
+
+#: Defaults of every key, table by table (CONTRACT.md). ``None`` marks an optional key
+#: without a default. The ``tracer`` table itself is optional.
+DEFAULTS: dict[str, dict[str, Any]] = {
+    "domain": {"dims": 2, "x": [-30.0, 30.0], "z": [0.0, 100.0], "spacing": 0.25,
+               "walls": "reflecting"},
+    "orifice": {"x": 0.0, "y": None, "width": 0.0, "profile": "uniform", "rate": 1.0},
+    "spots": {"drift": 1.0, "b": 1.3, "b_par": 0.0, "mode": "steady", "t_end": 0.0},
+    "kernel": {"shape": "gaussian", "size": 1.0, "volume": 0.05, "height": None,
+               "aspect": 1.0, "rule": 0.5},
+    "tracer": {"model": "spot", "start": None, "layers": None, "t_end": 100.0, "frames": 20,
+               "limiter": "koren", "cfl": 0.9, "diffusion": "auto"},
+    "output": {"path": "out.nc"},
+}
+RATE_TABLE_KEYS = {"times": None, "values": None}
+START_KEYS = {"x": None, "y": None, "z": None, "width": 1.0}
+LAYERS_KEYS = {"spacing": 10.0}
+
+#: Upper bounds that keep every derived number finite and every index an int.
+MAX_LENGTH = 1.0e6
+MAX_FRAMES = 10_000
+#: Fraction of the available memory a run may plan to use.
+MEMORY_FRACTION = 0.6
+#: Memory of the interpreter and libraries of a run (numpy, numba, xarray, matplotlib).
+BASELINE_BYTES = 512 * 1024**2
+#: Horizontal reach of a kernel in units of its ``size`` (a bound on the stencil).
+_REACH = {"uniform": 1.0, "gaussian": 5.0, "exponential": 12.0}
+
+
+class Case:
+    """A validated case: typed parameters plus the canonical mapping it came from.
+
+    Attributes:
+        data: the validated mapping with every default filled in (plain Python types).
+        text: the TOML text the case was read from (or :meth:`to_toml` for a mapping).
+        source: the case file's path, or ``None`` for a mapping.
+        grid: :class:`spotpde.grid.Grid`.
+        orifice: :class:`spotpde.parameters.Orifice`.
+        spots: :class:`spotpde.parameters.Spots`.
+        tracer: :class:`spotpde.parameters.Tracer`, or ``None`` without a ``[tracer]`` table.
+        rule: lam, where along a spot step its influence is evaluated (1 for the void model).
+        tracer_options: keyword options of ``spotpde.tracer.solve`` (``limiter``, ``cfl``,
+            ``diffusion``), empty without a tracer.
+        output_path: ``output.path`` resolved against the current directory.
+    """
+
+    def __init__(self, data: dict, text: str | None = None, source: str | None = None):
+        self.data = data
+        self.source = source
+        self.text = text if text is not None else self.to_toml()
+        d, o, s, k = data["domain"], data["orifice"], data["spots"], data["kernel"]
+        self.grid = Grid(dims=d["dims"], x_range=tuple(d["x"]), z_range=tuple(d["z"]),
+                         spacing=d["spacing"], walls=d["walls"])
+        rate = o["rate"]
+        if isinstance(rate, dict):
+            from .orifice import rate_from_table
+
+            rate = rate_from_table(rate["times"], rate["values"])
+        self.orifice = Orifice(x=o["x"], width=o["width"], profile=o["profile"],
+                               rate=rate, y=o.get("y"))
+        self.spots = Spots(drift=s["drift"], b=s["b"], b_par=s["b_par"], mode=s["mode"],
+                           t_end=s["t_end"])
+        self.tracer = _tracer(data.get("tracer"), self.grid, self.orifice)
+        t = data.get("tracer")
+        self.tracer_options = ({} if t is None else
+                               {k: t[k] for k in ("limiter", "cfl", "diffusion")})
+        volume = (k["height"] * _ellipsoid_measure(k["size"], k["aspect"], d["dims"])
+                  if "height" in k else k["volume"])
+        self.kernel_spec = {"shape": k["shape"], "size": k["size"], "volume": volume,
+                            "aspect": k["aspect"], "dims": d["dims"]}
+        self._kernel = None
+
+    # -- derived --------------------------------------------------------------------
+    @property
+    def model(self) -> str:
+        """``"spot"`` or ``"void"`` (``tracer.model``; ``"spot"`` without a tracer)."""
+        return self.tracer.model if self.tracer is not None else "spot"
+
+    @property
+    def rule(self) -> float:
+        """lam: ``kernel.rule``, or 1 for the void model."""
+        return 1.0 if self.model == "void" else float(self.data["kernel"]["rule"])
+
+    @property
+    def kernel(self):
+        """The influence kernel, ``spotpde.kernels.from_spec(shape, size, volume, aspect, dims)``."""
+        if self._kernel is None:
+            from . import kernels
+
+            self._kernel = kernels.from_spec(**self.kernel_spec)
+        return self._kernel
+
+    @property
+    def output_path(self) -> Path:
+        """``output.path``; a relative path is resolved against the current directory."""
+        return Path(os.path.abspath(os.path.expanduser(self.data["output"]["path"])))
+
+    def with_output(self, path: str | os.PathLike) -> "Case":
+        """A copy of this case writing to ``path`` (the command line's ``-o``).
+
+        Raises:
+            spotpde.CaseError: ``output.path: ...`` for a path that is not a file name.
+        """
+        data = {t: dict(v) if isinstance(v, dict) else v for t, v in self.data.items()}
+        data["output"]["path"] = os.fspath(path)
+        return Case(validate(data), None, self.source)
+
+    def to_toml(self) -> str:
+        """The validated case as TOML text, every default written out."""
+        return dump_toml(self.data)
+
+    def __repr__(self) -> str:
+        return f"Case(source={self.source!r}, grid={self.grid!r}, model={self.model!r})"
+
+
+# -- loading ------------------------------------------------------------------------
+
+def load_case(source: str | os.PathLike | Mapping) -> Case:
+    """Read and validate a case.
+
+    Args:
+        source: path of a TOML case file, or a mapping with the same tables and keys.
+
+    Returns:
+        The validated :class:`Case`.
+
+    Raises:
+        spotpde.CaseError: one line per problem (unreadable file, malformed TOML,
+            unknown or mistyped key, value out of range, inconsistent keys, a grid
+            too large for memory).
+    """
+    text = None
+    path = None
+    if isinstance(source, Mapping):
+        raw = source
+    elif isinstance(source, (str, os.PathLike)):
+        path = os.fspath(source)
+        try:
+            with open(path, "rb") as fh:
+                blob = fh.read()
+        except OSError as exc:
+            raise CaseError(f"{path}: cannot read the case file ({exc.strerror or exc})") from None
+        try:
+            text = blob.decode("utf-8")
+            raw = tomllib.loads(text)
+        except UnicodeDecodeError:
+            raise CaseError(f"{path}: malformed TOML: not UTF-8 text") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise CaseError(f"{path}: malformed TOML: {exc}") from None
+    else:
+        raise CaseError(
+            f"case: must be a path to a TOML file or a mapping, got {type(source).__name__}")
+    data = validate(raw)
+    case = Case(data, text, path)
+    _check_kernel(case)
+    return case
+
+
+def validate(raw: Mapping) -> dict:
+    """Validate a raw case mapping.
+
+    Args:
+        raw: tables and keys as read from TOML.
+
+    Returns:
+        The normalised mapping (floats as ``float``, every default filled in).
+
+    Raises:
+        spotpde.CaseError: listing every problem found.
+    """
+    v = _Validator()
+    data = v.tables(raw)
+    if not v.problems:
+        v.cross(data)
+    if not v.problems:
+        v.memory(data)
+    if v.problems:
+        raise CaseError(v.problems)
+    return data
+
+
+# -- helpers used by the pipeline ----------------------------------------------------
+
+def available_memory() -> int:
+    """Bytes of memory available to a new run (``MemAvailable``, else free pages).
+
+    Returns:
+        Available memory in bytes (4 GiB if the system does not say).
+    """
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):
+        return 4 * 1024**3
+
+
+def estimate_bytes(data: Mapping) -> int:
+    """Estimate the memory a run of a validated case holds at its peak.
+
+    Counts every grid array of the run (spot density, kinematic speed, drift and
+    diffusivity fields, solver scratch), the zero-padded FFT arrays of the kernel
+    convolution, the sampled kernel stencil, and the tracer frames.
+
+    Args:
+        data: a mapping that passed the per-key checks (``validate`` internals).
+
+    Returns:
+        Estimated peak bytes (a float-safe int).
+    """
+    d, k = data["domain"], data["kernel"]
+    dims, h = d["dims"], d["spacing"]
+    nx = (d["x"][1] - d["x"][0]) / h
+    nz = (d["z"][1] - d["z"][0]) / h
+    if d["walls"] == "open":   # the spot density is solved on a padded, wider grid
+        nx += 2 * math.ceil(6.0 * math.sqrt(data["spots"]["b"] * (d["z"][1] - d["z"][0])) / h)
+    cells = nz * nx ** (dims - 1)
+    reach_h = _REACH[k["shape"]] * k["size"]
+    reach_v = reach_h / k["aspect"]
+    sx, sz = 2 * math.ceil(reach_h / h) + 1, 2 * math.ceil(reach_v / h) + 1
+    stencil = sz * sx ** (dims - 1)
+    padded = (nz + sz) * (nx + sx) ** (dims - 1)
+    n_fields = 1 + 1 + (5 if dims == 2 else 9)     # rho_s, v_kin, u_*, D_**
+    scratch = 12                                    # spot-density and coefficient work arrays
+    tracer = data.get("tracer")
+    n_tracer = 0
+    if tracer is not None:
+        n_tracer = tracer["frames"] + 1 + 16        # frames, P_height, scheme fluxes/stages
+    total = 8.0 * cells * (n_fields + scratch + n_tracer)
+    total += 16.0 * padded * 6 + 8.0 * stencil * 2
+    return int(min(total, 1e30))
+
+
+# -- validation internals --------------------------------------------------------------
+
+def _show(value: Any) -> str:
+    """A value as the user would write it in TOML."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float, str)):
+        return _toml_value(value)
+    if isinstance(value, Mapping):
+        return "a table"
+    if isinstance(value, (list, tuple)):
+        if len(value) <= 4:
+            return "[" + ", ".join(_show(x) for x in value) + "]"
+        return f"a list of {len(value)} values"
+    return type(value).__name__
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+class _Validator:
+    def __init__(self):
+        self.problems: list[str] = []
+
+    def bad(self, key: str, message: str, value: Any = None, show: bool = True):
+        line = f"{key}: {message}"
+        if show:
+            line += f", got {_show(value)}"
+        self.problems.append(line)
+
+    # -- generic checks ------------------------------------------------------------
+    def unknown(self, prefix: str, raw: Mapping, valid) -> None:
+        for key in raw:
+            if key not in valid:
+                name = f"{prefix}{key}" if prefix else str(key)
+                what = "table" if not prefix else "key"
+                hint = difflib.get_close_matches(str(key), list(valid), n=1)
+                extra = f" (did you mean {hint[0]!r}?)" if hint else ""
+                choices = ", ".join(valid)
+                self.problems.append(f"{name}: unknown {what}{extra}; valid {what}s: {choices}")
+
+    def number(self, key, value, *, gt=None, ge=None, le=None, lt=None, integer=False,
+               limit=MAX_LENGTH):
+        """A finite number in range; returns float/int or None after recording a problem."""
+        kind = "an integer" if integer else "a number"
+        if integer:
+            ok = isinstance(value, int) and not isinstance(value, bool)
+        else:
+            ok = _is_number(value)
+        if not ok:
+            self.bad(key, f"must be {kind}", value)
+            return None
+        if not integer:
+            try:
+                value = float(value)
+            except OverflowError:
+                value = math.inf
+            if not math.isfinite(value):
+                self.bad(key, "must be a finite number", value)
+                return None
+        conds = []
+        if gt is not None and not value > gt:
+            conds.append(f"> {_show(gt)}")
+        if ge is not None and not value >= ge:
+            conds.append(f">= {_show(ge)}")
+        if lt is not None and not value < lt:
+            conds.append(f"< {_show(lt)}")
+        if le is not None and not value <= le:
+            conds.append(f"<= {_show(le)}")
+        if conds:
+            self.bad(key, "must be " + " and ".join(conds), value)
+            return None
+        if limit is not None and abs(value) > limit:
+            self.bad(key, f"must be at most {_show(limit)} in magnitude", value)
+            return None
+        return value
+
+    def choice(self, key, value, choices):
+        if not isinstance(value, str) or value not in choices:
+            allowed = ", ".join(f'"{c}"' for c in choices)
+            self.bad(key, f"must be one of {allowed}", value)
+            return None
+        return value
+
+    def pair(self, key, value):
+        """Two finite increasing numbers ``[a, b]``."""
+        if not isinstance(value, (list, tuple)) or len(value) != 2:
+            self.bad(key, "must be a list of two numbers [start, end]", value)
+            return None
+        a = self.number(f"{key}[0]", value[0])
+        b = self.number(f"{key}[1]", value[1])
+        if a is None or b is None:
+            return None
+        if not b > a:
+            self.bad(key, "must be increasing (start < end)", value)
+            return None
+        return [a, b]
+
+    def table(self, key, raw, defaults) -> dict | None:
+        if not isinstance(raw, Mapping):
+            self.bad(key, "must be a table", raw)
+            return None
+        self.unknown(f"{key}.", raw, defaults)
+        out = dict(defaults)
+        out.update({k: v for k, v in raw.items() if k in defaults})
+        return out
+
+    # -- tables --------------------------------------------------------------------
+    def tables(self, raw: Mapping) -> dict:
+        self.unknown("", raw, DEFAULTS)
+        self.given = {name: set(t) for name, t in raw.items() if isinstance(t, Mapping)}
+        data: dict[str, Any] = {}
+        for name, defaults in DEFAULTS.items():
+            if name == "tracer" and name not in raw:
+                continue
+            t = self.table(name, raw.get(name, {}), defaults)
+            if t is None:
+                continue
+            data[name] = getattr(self, f"_{name}")(t)
+        return data
+
+    def _domain(self, t):
+        return {
+            "dims": self.dims(t["dims"]),
+            "x": self.pair("domain.x", t["x"]),
+            "z": self.pair("domain.z", t["z"]),
+            "spacing": self.number("domain.spacing", t["spacing"], gt=0),
+            "walls": self.choice("domain.walls", t["walls"], WALLS),
+        }
+
+    def dims(self, value):
+        if not isinstance(value, int) or isinstance(value, bool) or value not in (2, 3):
+            self.bad("domain.dims", "must be 2 (x, z) or 3 (x, y, z)", value)
+            return None
+        return value
+
+    def _orifice(self, t):
+        out = {
+            "x": self.number("orifice.x", t["x"]),
+            "width": self.number("orifice.width", t["width"], ge=0),
+            "profile": self.choice("orifice.profile", t["profile"], PROFILES),
+            "rate": (self.rate_table(t["rate"]) if isinstance(t["rate"], Mapping)
+                     else self.number("orifice.rate", t["rate"], gt=0)),
+        }
+        if t["y"] is not None:
+            out["y"] = self.number("orifice.y", t["y"])
+        return out
+
+    def rate_table(self, raw):
+        """``orifice.rate = { times = [...], values = [...] }``: Q0(t) for transient runs."""
+        t = self.table("orifice.rate", raw, RATE_TABLE_KEYS)
+        if t is None:
+            return None
+        out = {}
+        for key in ("times", "values"):
+            seq = t[key]
+            if not isinstance(seq, (list, tuple)) or not 1 <= len(seq) <= 10_000:
+                self.bad(f"orifice.rate.{key}", "must be a list of 1 to 10000 numbers", seq)
+                return None
+            nums = [self.number(f"orifice.rate.{key}[{i}]", v, ge=0 if key == "values"
+                                else None, limit=1e9) for i, v in enumerate(seq)]
+            if any(v is None for v in nums):
+                return None
+            out[key] = nums
+        if len(out["times"]) != len(out["values"]):
+            self.problems.append(f"orifice.rate: times and values must have the same length, "
+                                 f"got {len(out['times'])} times and {len(out['values'])} "
+                                 "values")
+            return None
+        if any(b <= a for a, b in zip(out["times"], out["times"][1:])):
+            self.bad("orifice.rate.times", "must be strictly increasing", out["times"])
+            return None
+        if max(out["values"]) <= 0:
+            self.bad("orifice.rate.values", "must include a value > 0", out["values"])
+            return None
+        return out
+
+    def _spots(self, t):
+        return {
+            "drift": self.number("spots.drift", t["drift"], gt=0),
+            "b": self.number("spots.b", t["b"], gt=0),
+            "b_par": self.number("spots.b_par", t["b_par"], ge=0),
+            "mode": self.choice("spots.mode", t["mode"], SPOT_MODES),
+            "t_end": self.number("spots.t_end", t["t_end"], ge=0),
+        }
+
+    def _kernel(self, t):
+        out = {
+            "shape": self.choice("kernel.shape", t["shape"], KERNEL_SHAPES),
+            "size": self.number("kernel.size", t["size"], gt=0),
+            "volume": self.number("kernel.volume", t["volume"], gt=0),
+            "aspect": self.number("kernel.aspect", t["aspect"], gt=0, le=1000),
+            "rule": self.number("kernel.rule", t["rule"], gt=0, le=1),
+        }
+        if t["height"] is not None:
+            out["height"] = self.number("kernel.height", t["height"], gt=0, le=1)
+            del out["volume"]
+            if "volume" in self.given.get("kernel", ()):
+                self.problems.append("kernel.volume: give either kernel.volume or "
+                                     "kernel.height (uniform kernel), not both")
+        return out
+
+    def _tracer(self, t):
+        out = {
+            "model": self.choice("tracer.model", t["model"], TRACER_MODELS),
+            "t_end": self.number("tracer.t_end", t["t_end"], gt=0, limit=1e9),
+            "frames": self.number("tracer.frames", t["frames"], integer=True, ge=2,
+                                  le=MAX_FRAMES),
+            "limiter": self.choice("tracer.limiter", t["limiter"], LIMITERS),
+            "cfl": self.number("tracer.cfl", t["cfl"], gt=0, le=1),
+            "diffusion": self.choice("tracer.diffusion", t["diffusion"], DIFFUSION_MODES),
+        }
+        if t["start"] is not None and t["layers"] is not None:
+            self.problems.append(
+                "tracer: give either tracer.start (a Gaussian blob) or tracer.layers, not both")
+        elif t["start"] is None and t["layers"] is None:
+            self.problems.append(
+                "tracer: missing the initial density; give tracer.start = { x, z, width } "
+                "or tracer.layers = { spacing }")
+        elif t["start"] is not None:
+            s = self.table("tracer.start", t["start"], START_KEYS)
+            if s is not None:
+                start = {}
+                for key in ("x", "y", "z"):
+                    if s[key] is not None:
+                        start[key] = self.number(f"tracer.start.{key}", s[key])
+                    elif key != "y":
+                        self.problems.append(f"tracer.start.{key}: required (a number, in d)")
+                start["width"] = self.number("tracer.start.width", s["width"], gt=0)
+                out["start"] = start
+        else:
+            s = self.table("tracer.layers", t["layers"], LAYERS_KEYS)
+            if s is not None:
+                out["layers"] = {"spacing": self.number("tracer.layers.spacing", s["spacing"],
+                                                        gt=0)}
+        return out
+
+    def _output(self, t):
+        path = t["path"]
+        if not isinstance(path, str) or not path.strip() or "\x00" in path:
+            self.bad("output.path", "must be a non-empty file name (string)", path)
+            path = None
+        elif path.endswith(("/", os.sep)) or os.path.isdir(os.path.expanduser(path)):
+            self.bad("output.path", "must name a file, not a directory", path)
+            path = None
+        return {"path": path}
+
+    # -- cross-key consistency -----------------------------------------------------
+    def cross(self, data):
+        d, o, s, k = data["domain"], data["orifice"], data["spots"], data["kernel"]
+        dims, h = d["dims"], d["spacing"]
+        x0, x1 = d["x"]
+        z0, z1 = d["z"]
+        if z0 != 0.0:
+            self.bad("domain.z", "must start at 0 (the orifice is the floor z = 0)", d["z"])
+        for name, (a, b) in (("x", d["x"]), ("z", d["z"])):
+            n = (b - a) / h
+            if not math.isfinite(n) or n > 1e9:
+                self.bad("domain.spacing", f"is far too small for the domain.{name} extent "
+                         f"{_show(b - a)} ({n:.3g} cells)", h)
+            elif round(n) < 4:
+                self.bad("domain.spacing", f"must give at least 4 cells across the "
+                         f"domain.{name} extent {_show(b - a)}", h)
+            elif abs(n - round(n)) > 1e-6 * max(1.0, n):
+                self.bad("domain.spacing", f"must divide the domain.{name} extent "
+                         f"{_show(b - a)} into whole cells", h)
+        # orifice on the floor
+        half = 0.5 * o["width"] if o["profile"] == "uniform" else 0.0
+        if not (x0 <= o["x"] - half and o["x"] + half <= x1):
+            what = "the slot [x - width/2, x + width/2]" if half else "the centre"
+            self.bad("orifice.x", f"{what} must lie on the floor "
+                     f"domain.x = [{_show(x0)}, {_show(x1)}] (orifice.width = "
+                     f"{_show(o['width'])})", o["x"])
+        if "y" in o:
+            if dims != 3:
+                self.bad("orifice.y", "is only used when domain.dims = 3; remove it",
+                         o["y"])
+            elif not (x0 <= o["y"] - half and o["y"] + half <= x1):
+                self.bad("orifice.y", f"the orifice must lie on the floor, y in "
+                         f"[{_show(x0)}, {_show(x1)}] (y uses the domain.x extent)", o["y"])
+        if o["profile"] == "gaussian" and o["width"] == 0.0:
+            self.bad("orifice.width", 'must be > 0 for profile = "gaussian" '
+                     '(use profile = "uniform" with width = 0 for a point source)', 0.0)
+        if 0.0 < o["width"] < h and o["profile"] == "uniform":
+            self.bad("orifice.width", f"must be 0 (a point source) or at least one cell "
+                     f"(domain.spacing = {_show(h)})", o["width"])
+        # spots
+        if isinstance(o["rate"], dict) and s["mode"] != "transient":
+            self.bad("orifice.rate", 'a table of rates needs spots.mode = "transient"; '
+                     "give a number for a steady run", o["rate"])
+        if s["mode"] == "transient" and s["t_end"] <= 0:
+            self.bad("spots.t_end", 'must be > 0 when spots.mode = "transient"', s["t_end"])
+        if s["mode"] == "steady" and s["t_end"] != 0:
+            self.bad("spots.t_end", 'is only used when spots.mode = "transient"; '
+                     'set it to 0 or remove it', s["t_end"])
+        # kernel
+        if "height" in k:
+            if k["shape"] != "uniform":
+                self.bad("kernel.height", 'is only for shape = "uniform" (the influence w '
+                         'inside the disk/sphere); give kernel.volume instead', k["height"])
+        # tracer
+        t = data.get("tracer")
+        if t is not None and "start" in t:
+            st = t["start"]
+            if not x0 <= st["x"] <= x1:
+                self.bad("tracer.start.x", f"must lie in domain.x = [{_show(x0)}, "
+                         f"{_show(x1)}]", st["x"])
+            if not z0 < st["z"] < z1:
+                self.bad("tracer.start.z", f"must lie inside domain.z = ({_show(z0)}, "
+                         f"{_show(z1)})", st["z"])
+            if "y" in st:
+                if dims != 3:
+                    self.bad("tracer.start.y", "is only used when domain.dims = 3; remove it",
+                             st["y"])
+                elif not x0 <= st["y"] <= x1:
+                    self.bad("tracer.start.y", f"must lie in [{_show(x0)}, {_show(x1)}] "
+                             "(y uses the domain.x extent)", st["y"])
+            if st["width"] < h:
+                self.bad("tracer.start.width", f"must be at least domain.spacing = "
+                         f"{_show(h)} so the blob is resolved", st["width"])
+        if t is not None and "layers" in t:
+            sp = t["layers"]["spacing"]
+            if sp < 2 * h:
+                self.bad("tracer.layers.spacing", f"must be at least 2 * domain.spacing = "
+                         f"{_show(2 * h)} so every band covers a cell", sp)
+            elif sp >= 2 * (z1 - z0):
+                self.bad("tracer.layers.spacing", f"must be < 2 * the domain height "
+                         f"{_show(z1 - z0)} to leave a band and a gap in the silo", sp)
+
+    def memory(self, data):
+        need = estimate_bytes(data) + BASELINE_BYTES
+        have = available_memory()
+        if need > MEMORY_FRACTION * have:
+            d = data["domain"]
+            nx = (d["x"][1] - d["x"][0]) / d["spacing"]
+            nz = (d["z"][1] - d["z"][0]) / d["spacing"]
+            cells = " x ".join(f"{n:,.0f}" for n in ([nz] + [nx] * (d["dims"] - 1)))
+            self.bad("domain.spacing", f"the grid of {cells} cells (with kernel stencil and "
+                     f"tracer frames) needs about {_gb(need)}, more than the "
+                     f"{_gb(MEMORY_FRACTION * have)} this machine can spare; use a larger "
+                     f"spacing, a smaller domain or fewer tracer.frames", d["spacing"])
+
+
+def _gb(n: float) -> str:
+    return f"{n / 1024**3:.3g} GB" if n < 1e25 else "an impossible amount of memory"
+
+
+def _ellipsoid_measure(radius: float, aspect: float, dims: int) -> float:
+    """Area of the ellipse (2D) or volume of the spheroid (3D) with horizontal radius
+    ``radius`` and vertical radius ``radius / aspect``, in d**dims."""
+    if dims == 2:
+        return math.pi * radius * radius / aspect
+    return 4.0 / 3.0 * math.pi * radius**3 / aspect
+
+
+def _check_kernel(case: Case) -> None:
+    """Build the kernel and the orifice profile once, so that the solvers' own checks
+    run at load time (cheap: the kernel's parameters and one floor-sized array)."""
+    try:
+        from . import kernels  # noqa: F401
+        from . import orifice
+    except ImportError:   # optional while the solver modules are being written
+        return
+    try:
+        case.kernel
+    except CaseError:
+        raise
+    except (ValueError, ArithmeticError, TypeError) as exc:
+        lines = str(exc).splitlines() or [type(exc).__name__]
+        raise CaseError([f"kernel: {line}" for line in lines]) from None
+    orifice.source_profile(case.grid, case.orifice)
+
+
+def _tracer(t: Mapping | None, grid: Grid, orifice: Orifice) -> Tracer | None:
+    if t is None:
+        return None
+    if "layers" in t:
+        start = TracerStart(kind="layers", spacing=t["layers"]["spacing"])
+    else:
+        st = t["start"]
+        y = st.get("y")
+        if grid.dims == 3 and y is None:
+            y = orifice.y if orifice.y is not None else grid.y_centre
+        start = TracerStart(kind="blob", x=st["x"], z=st["z"], width=st["width"], y=y)
+    return Tracer(model=t["model"], start=start, t_end=t["t_end"], frames=t["frames"])
+
+
+# -- a tiny TOML writer for case mappings ------------------------------------------
+
+def dump_toml(data: Mapping) -> str:
+    """Write a case mapping as TOML: top-level tables of scalars, lists and inline tables.
+
+    Args:
+        data: ``{table: {key: value}}`` with bool, int, float, str, lists of those and
+            one level of nested mappings (written as inline tables).
+
+    Returns:
+        TOML text that :func:`tomllib.loads` reads back to an equal mapping.
+    """
+    lines: list[str] = []
+    for table, body in data.items():
+        if lines:
+            lines.append("")
+        lines.append(f"[{_toml_key(table)}]")
+        for key, value in body.items():
+            if value is None:
+                continue
+            lines.append(f"{_toml_key(key)} = {_toml_value(value)}")
+    return "\n".join(lines) + "\n"
+
+
+def _toml_key(key: str) -> str:
+    if key and all(c.isascii() and (c.isalnum() or c in "_-") for c in key):
+        return key
+    return _toml_string(key)
+
+
+def _toml_string(s: str) -> str:
+    out = ['"']
+    for c in s:
+        if c == '"':
+            out.append('\\"')
+        elif c == "\\":
+            out.append("\\\\")
+        elif ord(c) < 0x20 or ord(c) == 0x7F:
+            out.append(f"\\u{ord(c):04X}")
+        else:
+            out.append(c)
+    out.append('"')
+    return "".join(out)
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if math.isnan(v):
+            return "nan"
+        if math.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        return repr(v)
+    if isinstance(v, str):
+        return _toml_string(v)
+    if isinstance(v, Mapping):
+        inner = ", ".join(f"{_toml_key(k)} = {_toml_value(x)}" for k, x in v.items()
+                          if x is not None)
+        return "{ " + inner + " }" if inner else "{}"
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"cannot write {type(v).__name__} as TOML")

@@ -1,0 +1,692 @@
+"""Nonlocal drift and diffusivity of particles in the spot model (PHYSICS.md section 2).
+
+A spot at ``r_s`` stepping by ``dR_s`` moves a particle at ``r`` by
+``-w(r - r_s - lam dR_s) dR_s``. Expanding to second order in ``dR_s`` and averaging over
+independent (Poisson) spots gives the Fokker-Planck coefficients of a tracer particle::
+
+    u_p^a(r) = - sum_s w(r - r_s) rho_s u_s^a  +  2 lam sum_s (d_b w)(r - r_s) rho_s D_s^ab
+    D_p^ab(r) =   sum_s w(r - r_s)^2 rho_s D_s^ab
+
+(``sum_s`` is the integral over spot positions inside the silo). Integrating the second
+drift term by parts turns it into the convolution form of the issue,
+
+    u_p = - w * (rho_s u_s - 2 lam div(D_s rho_s))  +  wall layer,
+    D_p =   w^2 * (rho_s D_s),
+
+where ``div`` is the ordinary derivative inside the silo and the *wall layer* collects the
+boundary terms. With reflecting side walls a reflected spot also has a mean push away
+from the wall (its local time), ``rho_s u_s^a -= (D_s rho_s)^ab n_b delta_wall``, which gives
+a boundary term of the same shape. Both together give (derivation and checks in
+``docs/coefficients.md``)::
+
+    wall layer^a(r) = (1 - 2 lam) * integral_walls (D_s rho_s)^ab n_b (r_w) w(r - r_w) dA_w
+
+It vanishes for the midpoint rule ``lam = 1/2``, for which ``u_p = -w * J_s`` with
+``J_s = rho_s u_s - div(D_s rho_s)`` the spot flux. With ``lam = 1`` (the paper's printed
+eq. up) it pushes particles away from the walls. With ``walls = "open"`` (a window on a
+wider silo) there is no wall and no wall layer.
+
+Array conventions follow ``docs/architecture.md``: float64 arrays in array order ``(z, x)``
+or ``(z, y, x)``; vector and tensor fields are dicts keyed ``u_x, [u_y,] u_z`` and
+``D_xx, D_xz, D_zz, [D_yy, D_xy, D_yz]``. Units: lengths in d, times in the case's unit,
+``u_p`` in d per unit time, ``D_p`` in d**2 per unit time.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+import scipy.signal
+
+from .grid import Grid
+from .parameters import Spots
+
+__all__ = [
+    "particle_fields",
+    "spot_diffusivity",
+    "divergence",
+    "flux_velocity",
+    "incompressibility_defect",
+    "velocity_correlation",
+    "pair_diffusivity",
+    "DRIFT_KEYS",
+    "DIFFUSIVITY_KEYS",
+]
+
+#: Drift components by dimension, in the result-variable names of CONTRACT.md.
+DRIFT_KEYS = {2: ("u_x", "u_z"), 3: ("u_x", "u_y", "u_z")}
+#: Independent components of the symmetric diffusivity tensor by dimension.
+DIFFUSIVITY_KEYS = {
+    2: ("D_xx", "D_xz", "D_zz"),
+    3: ("D_xx", "D_yy", "D_zz", "D_xy", "D_xz", "D_yz"),
+}
+_COMPONENTS = {2: ("x", "z"), 3: ("x", "y", "z")}
+#: Sub-samples per cell and axis for kernel quadratures at arbitrary points.
+_SUBSAMPLE = 6
+#: Largest number of quadrature points of one cross integral (fewer sub-samples beyond).
+_MAX_POINTS = 4_000_000
+
+
+# -- small helpers -----------------------------------------------------------------------
+
+def _axis(grid: Grid, comp: str) -> int:
+    """Array axis of a coordinate: z is axis 0, x the last, y (3D) axis 1."""
+    return {"z": 0, "y": 1, "x": grid.dims - 1}[comp]
+
+
+def _pair(a: str, b: str) -> str:
+    """Canonical tensor key of components ``a, b`` (``D_xz``, never ``D_zx``)."""
+    order = "xyz"
+    a, b = sorted((a, b), key=order.index)
+    return f"D_{a}{b}"
+
+
+def _is_zero(value) -> bool:
+    return value is None or (np.ndim(value) == 0 and float(value) == 0.0)
+
+
+def _check_coefficient(grid: Grid, name: str, value) -> None:
+    if np.ndim(value) == 0:
+        if not np.isfinite(float(value)):
+            raise ValueError(f"{name}: must be finite, got {value!r}")
+        return
+    if np.shape(value) != grid.shape:
+        raise ValueError(f"{name}: array shape {np.shape(value)} does not match the grid "
+                         f"shape {grid.shape} (array order {grid.axes})")
+    if not np.all(np.isfinite(value)):
+        raise ValueError(f"{name}: contains NaN or infinite values")
+
+
+def _check_rule(rule) -> float:
+    try:
+        lam = float(rule)
+    except (TypeError, ValueError):
+        raise ValueError(f"rule: must be a number (0.5 midpoint, 1 end point), got {rule!r}")
+    if not np.isfinite(lam) or not 0.0 <= lam <= 1.0:
+        raise ValueError(f"rule: must lie in [0, 1] (0.5 midpoint, 1 end point), got {rule!r}")
+    return lam
+
+
+def _check_inputs(grid: Grid, rho_s: np.ndarray, kernel) -> np.ndarray:
+    rho_s = np.asarray(rho_s, dtype=float)
+    if rho_s.shape != grid.shape:
+        raise ValueError(f"rho_s: array shape {rho_s.shape} does not match the grid shape "
+                         f"{grid.shape} (array order {grid.axes})")
+    if not np.all(np.isfinite(rho_s)):
+        raise ValueError("rho_s: contains NaN or infinite values")
+    if getattr(kernel, "dims", grid.dims) != grid.dims:
+        raise ValueError(f"kernel: built for dims={kernel.dims} but the grid has dims={grid.dims}")
+    return rho_s
+
+
+def spot_diffusivity(grid: Grid, spots: Spots, tensor: Mapping | None = None) -> dict:
+    """The spot diffusivity tensor ``D_s`` by component, in d**2 per unit time.
+
+    Args:
+        grid: the grid (its ``dims`` decides the components).
+        spots: spot parameters; ``D_s = diag(D_perp, [D_perp,] D_par)`` with
+            ``D_perp = b v_s`` and ``D_par = b_par v_s`` (PHYSICS.md, eq. Ds of the paper).
+        tensor: optional full tensor overriding ``spots``: a mapping from keys
+            ``D_xx``, ``D_xz``, ... (any subset; missing components are zero) to floats or
+            grid arrays.
+
+    Returns:
+        ``{"D_xx": ..., "D_xz": ..., ...}``: floats or grid arrays (``DIFFUSIVITY_KEYS``).
+    """
+    keys = DIFFUSIVITY_KEYS[grid.dims]
+    if tensor is not None:
+        unknown = sorted(set(tensor) - set(keys))
+        if unknown:
+            raise ValueError(f"spot diffusivity: unknown components {unknown}; valid: {list(keys)}")
+        out = {k: tensor.get(k, 0.0) for k in keys}
+    else:
+        out = {k: 0.0 for k in keys}
+        out["D_xx"] = spots.D_perp
+        if grid.dims == 3:
+            out["D_yy"] = spots.D_perp
+        out["D_zz"] = spots.D_par
+    for k, v in out.items():
+        _check_coefficient(grid, f"spot diffusivity {k}", v)
+    return out
+
+
+def _gradient(grid: Grid, f: np.ndarray, comp: str) -> np.ndarray:
+    """Second-order derivative along ``comp``: central inside, one-sided at the ends."""
+    if f.shape[_axis(grid, comp)] < 3:
+        raise ValueError(f"grid: need at least 3 cells along {comp} to differentiate")
+    return np.gradient(f, grid.spacing, axis=_axis(grid, comp), edge_order=2)
+
+
+def divergence(grid: Grid, tensor: Mapping[str, np.ndarray]) -> dict:
+    """Row divergence ``(div T)^a = sum_b d_b T^ab`` of a symmetric tensor field.
+
+    Derivatives are second order on the grid (central inside, one-sided at the
+    boundaries). Missing or scalar-zero components are skipped.
+
+    Args:
+        grid: the grid.
+        tensor: ``{"D_xx": array, ...}`` (keys of ``DIFFUSIVITY_KEYS``).
+
+    Returns:
+        ``{"x": array, ..., "z": array}`` in the tensor's units per d.
+    """
+    comps = _COMPONENTS[grid.dims]
+    out = {}
+    for a in comps:
+        acc = np.zeros(grid.shape)
+        for b in comps:
+            t = tensor.get(_pair(a, b))
+            if _is_zero(t) or np.ndim(t) == 0:
+                continue
+            acc += _gradient(grid, np.asarray(t, dtype=float), b)
+        out[a] = acc
+    return out
+
+
+# -- convolution ---------------------------------------------------------------------------
+
+def _convolve(fields: Sequence[np.ndarray], stencil: np.ndarray) -> list[np.ndarray]:
+    """Linear (zero-padded) discrete convolution of several fields with one stencil."""
+    if not fields:
+        return []
+    from . import convolution
+
+    out = convolution.convolve(list(fields), stencil, mode="linear")
+    if isinstance(out, np.ndarray) and out.ndim == np.ndim(fields[0]) and len(fields) == 1:
+        return [out]
+    return list(out)
+
+
+def _proportional(s1: np.ndarray, s2: np.ndarray) -> float | None:
+    """``c`` if ``s2 == c * s1`` to round-off (e.g. the uniform kernel: w**2 = height w)."""
+    if s1.shape != s2.shape:
+        return None
+    total = s1.sum()
+    if total == 0.0:
+        return None
+    c = s2.sum() / total
+    if np.allclose(s2, c * s1, rtol=1e-12, atol=1e-14 * np.abs(s2).max()):
+        return float(c)
+    return None
+
+
+class _Convolutions:
+    """Collects ``w**power * source`` requests and computes them in one call per stencil.
+
+    Sources are named; a source requested with both powers is transformed once when the
+    ``w**2`` stencil is a multiple of the ``w`` stencil (the uniform kernel, where
+    ``w**2 = height * w``), so every distinct (source, stencil) pair costs one transform.
+    Results are the continuum integrals, i.e. already multiplied by ``h**dims``.
+    """
+
+    def __init__(self, grid: Grid, kernel):
+        self.h = grid.spacing
+        self.dims = grid.dims
+        self.stencils = {p: np.asarray(kernel.sample(self.h, power=p), dtype=float) for p in (1, 2)}
+        c = _proportional(self.stencils[1], self.stencils[2])
+        # power -> (stencil used, factor)
+        self.use = {1: (1, 1.0), 2: (1, c) if c is not None else (2, 1.0)}
+        self.sources: dict[str, np.ndarray] = {}
+        self.requests: set = set()
+
+    def request(self, name: str, source: np.ndarray, power: int) -> tuple:
+        """Register ``w**power * source``; returns the key to look the result up with."""
+        self.sources[name] = source
+        self.requests.add((name, power))
+        return (name, power)
+
+    def run(self) -> dict[tuple, np.ndarray]:
+        hd = self.h**self.dims
+        out = {}
+        for p in (1, 2):
+            names = sorted({n for n, q in self.requests if self.use[q][0] == p})
+            if not names:
+                continue
+            results = _convolve([self.sources[n] for n in names], self.stencils[p])
+            done = dict(zip(names, results))
+            for n, q in self.requests:
+                if self.use[q][0] == p:
+                    out[(n, q)] = done[n] * (hd * self.use[q][1])
+        return out
+
+
+# -- the wall layer --------------------------------------------------------------------------
+
+def _face_value(f: np.ndarray, axis: int, side: int) -> np.ndarray:
+    """Value on the boundary face from the three nearest cell centres (third order)."""
+    idx = (0, 1, 2) if side < 0 else (-1, -2, -3)
+    f0, f1, f2 = (np.take(f, i, axis=axis) for i in idx)
+    return (15.0 * f0 - 10.0 * f1 + 3.0 * f2) / 8.0
+
+
+def _wall_layer(grid: Grid, kernel, comp: str, g_face: Mapping[int, np.ndarray]) -> np.ndarray:
+    """``sum_walls integral g(r_w) w(r - r_w) dA_w`` for the two walls normal to ``comp``.
+
+    Args:
+        grid: the grid.
+        kernel: influence kernel (``evaluate``, ``reach``).
+        comp: ``"x"`` or ``"y"``: the wall normal.
+        g_face: ``{-1: g on the low wall, +1: g on the high wall}``, arrays over the wall
+            (the grid shape with the normal axis removed), already multiplied by ``n``.
+
+    Returns:
+        grid-shaped array. The tangential integral is a discrete sum over wall cells with
+        ``w`` averaged over each cell (sub-sampled); along the normal, ``w`` is evaluated
+        at the particle's cell centre.
+    """
+    h = grid.spacing
+    axis = _axis(grid, comp)
+    reach_h, reach_v = kernel.reach
+    comps = _COMPONENTS[grid.dims]
+    tangential = [c for c in ("z", "y", "x") if c in comps and c != comp]
+    lo, hi = grid.x_range
+    n_normal = grid.shape[axis]
+    out = np.zeros(grid.shape)
+    # tangential stencil offsets (in cells), centred, covering the reach
+    half = {c: int(np.ceil((reach_v if c == "z" else reach_h) / h)) + 1 for c in tangential}
+    sub = (np.arange(_SUBSAMPLE) + 0.5) / _SUBSAMPLE - 0.5
+    t_offsets = [np.add.outer(np.arange(-half[c], half[c] + 1) * h, sub * h).ravel()
+                 for c in tangential]
+    t_mesh = np.meshgrid(*t_offsets, indexing="ij")
+    jmax = min(n_normal, int(np.ceil(reach_h / h)) + 1)
+    for side, g in g_face.items():
+        if _is_zero(g) or not np.any(g):
+            continue
+        wall = hi if side > 0 else lo
+        for j in range(jmax):
+            i = n_normal - 1 - j if side > 0 else j
+            centre = lo + (i + 0.5) * h
+            coords = {comp: np.full(t_mesh[0].shape, centre - wall)}
+            coords.update({c: m for c, m in zip(tangential, t_mesh)})
+            # kernel offsets r - r_w; evaluate takes (x, z) or (x, y, z)
+            args = [coords[c] for c in comps]
+            w = np.asarray(kernel.evaluate(*args), dtype=float)
+            if not np.any(w):
+                continue
+            # average the sub-samples of each tangential cell
+            shape = []
+            for c in tangential:
+                shape += [2 * half[c] + 1, _SUBSAMPLE]
+            w = w.reshape(shape).mean(axis=tuple(range(1, 2 * len(tangential), 2)))
+            layer = scipy.signal.convolve(g, w, mode="same", method="direct" if w.size < 400 else "auto")
+            idx = [slice(None)] * grid.dims
+            idx[axis] = i
+            out[tuple(idx)] += layer * h ** (grid.dims - 1)
+    return out
+
+
+# -- constant coefficients: one convolution of rho_s -----------------------------------------
+
+def _boundary_planes(grid: Grid, rho_p: np.ndarray, comp: str) -> list[tuple[int, np.ndarray]]:
+    """Planes where the zero-extended central difference differs from ``np.gradient``.
+
+    On the grid padded by one cell, ``delta f = (f[i+1] - f[i-1]) / 2h`` of the zero-extended
+    ``rho_s`` equals the second-order ``np.gradient`` inside; they differ on the two
+    boundary cells (one-sided formula) and on the two ghost cells (where ``np.gradient``'s
+    field is zero). Returns ``[(padded index, delta - gradient on that plane), ...]``.
+    """
+    axis = _axis(grid, comp)
+    h = grid.spacing
+    n = rho_p.shape[axis] - 2
+    rho = rho_p[tuple(_inner_all(rho_p.ndim))]
+    g_p = np.pad(np.gradient(rho, h, axis=axis, edge_order=2), 1)
+    planes = []
+    for p in (0, 1, n, n + 1):
+        lo = np.take(rho_p, p - 1, axis=axis) if p >= 1 else 0.0
+        hi = np.take(rho_p, p + 1, axis=axis) if p <= n else 0.0
+        planes.append((p, (hi - lo) / (2.0 * h) - np.take(g_p, p, axis=axis)))
+    return planes
+
+
+def _inner_all(ndim: int) -> list[slice]:
+    return [slice(1, -1)] * ndim
+
+
+def _plane_convolution(stencil: np.ndarray, planes, axis: int, out_shape) -> np.ndarray:
+    """``sum_j stencil[j] c[o - j]`` for a field ``c`` supported on a few planes normal to ``axis``.
+
+    Args:
+        stencil: centred stencil (array order).
+        planes: ``[(padded index p, plane array over the other padded axes), ...]``.
+        axis: the planes' normal axis.
+        out_shape: the padded grid shape.
+
+    Returns:
+        array of ``out_shape`` (padded), the discrete convolution.
+    """
+    out = np.zeros(out_shape)
+    m = stencil.shape[axis] // 2
+    n_out = out_shape[axis]
+    for p, q in planes:
+        if not np.any(q):
+            continue
+        for o in range(max(0, p - m), min(n_out, p + m + 1)):
+            s = np.take(stencil, o - p + m, axis=axis)
+            if not np.any(s):
+                continue
+            if q.ndim == 1:
+                layer = scipy.signal.convolve(q, s, mode="same", method="direct")
+            else:
+                layer = scipy.signal.oaconvolve(q, s, mode="same")
+            idx = [slice(None)] * len(out_shape)
+            idx[axis] = o
+            out[tuple(idx)] += layer
+    return out
+
+
+def _constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, lam: float,
+                     conv: _Convolutions) -> dict[str, np.ndarray]:
+    """``u_p`` and ``D_p`` for constant ``v_s`` and ``D_s`` from one convolution per stencil.
+
+    With constant coefficients ``w * div(D_s rho_s) = D_s^ab w * d_b rho_s``, and the
+    discrete convolution commutes with the central difference on the zero-extended field:
+    ``w * grad(rho_s) = delta(w * rho_s~) - w * c``, where ``c`` lives on the boundary and
+    ghost planes only (:func:`_boundary_planes`). So ``w * rho_s~`` on the grid padded by
+    one cell gives ``u_z``, every ``w * d_b rho_s`` and (``w**2`` proportional to ``w``, or one
+    more transform) ``D_p``; the plane terms are cheap 1D/2D convolutions. Identical to
+    the general path to round-off.
+    """
+    comps = _COMPONENTS[grid.dims]
+    h = grid.spacing
+    hd = h**grid.dims
+    rho_p = np.pad(rho_s, 1)
+    inner = tuple(_inner_all(grid.dims))
+    need_D = any(not _is_zero(d) for d in D_s.values())
+    k1 = conv.request("rho_padded", rho_p, 1)
+    k2 = conv.request("rho_padded", rho_p, 2) if need_D else None
+    res = conv.run()
+    c1 = res[k1]
+    fields = {f"u_{a}": np.zeros(grid.shape) for a in comps}
+    if v_s != 0.0:
+        fields["u_z"] = -v_s * c1[inner]
+    if lam != 0.0:
+        stencil = conv.stencils[1]
+        for b in comps:
+            coeffs = {a: D_s[_pair(a, b)] for a in comps if not _is_zero(D_s[_pair(a, b)])}
+            if not coeffs:
+                continue
+            axis = _axis(grid, b)
+            delta = (np.roll(c1, -1, axis=axis) - np.roll(c1, 1, axis=axis)) / (2.0 * h)
+            planes = _boundary_planes(grid, rho_p, b)
+            corr = hd * _plane_convolution(stencil, planes, axis, rho_p.shape)
+            w_grad = (delta - corr)[inner]
+            for a, d in coeffs.items():
+                fields[f"u_{a}"] += 2.0 * lam * float(d) * w_grad
+    for key, d in D_s.items():
+        fields[key] = float(d) * res[k2][inner] if not _is_zero(d) else np.zeros(grid.shape)
+    return fields
+
+
+def _general_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: float,
+                    conv: _Convolutions) -> dict[str, np.ndarray]:
+    """``u_p`` and ``D_p`` for coefficients that vary in space: one transform per source.
+
+    Sources ``rho_s D_s^ab`` (for ``D_p``), ``div(D_s rho_s)`` (second-order grid
+    differences) and ``rho_s v_s`` are convolved with ``w**2`` or ``w``; constant factors
+    are pulled out of the convolutions. Also returns ``"_G"``: the ``rho_s D_s^ab`` arrays.
+    """
+    comps = _COMPONENTS[grid.dims]
+    G = {}  # rho_s D_s^ab as arrays (None when identically zero)
+    D_terms = {}
+    for key, d in D_s.items():
+        if _is_zero(d):
+            G[key] = None
+            continue
+        G[key] = rho_s * d
+        if np.ndim(d) == 0:
+            D_terms[key] = (float(d), conv.request("rho", rho_s, 2))
+        else:
+            D_terms[key] = (1.0, conv.request(key, G[key], 2))
+
+    # u_p = -w * (rho_s u_s) + 2 lam w * div(D_s rho_s), div on the grid; a constant v_s
+    # multiplies the convolution w * rho_s
+    div = divergence(grid, G)
+    u_terms = {a: [] for a in comps}
+    for a in comps:
+        if lam != 0.0 and np.any(div[a]):
+            u_terms[a].append((2.0 * lam, conv.request(f"div_{a}", div[a], 1)))
+    if np.ndim(v_s) == 0:
+        if float(v_s) != 0.0:
+            u_terms["z"].append((-float(v_s), conv.request("rho", rho_s, 1)))
+    else:
+        u_terms["z"].append((-1.0, conv.request("rho_v", rho_s * v_s, 1)))
+
+    res = conv.run()
+    fields = {}
+    for a in comps:
+        acc = np.zeros(grid.shape)
+        for factor, key in u_terms[a]:
+            acc += factor * res[key]
+        fields[f"u_{a}"] = acc
+    for key in D_s:
+        if key in D_terms:
+            factor, rkey = D_terms[key]
+            fields[key] = factor * res[rkey]
+        else:
+            fields[key] = np.zeros(grid.shape)
+    fields["_G"] = G
+    return fields
+
+
+# -- the fields ------------------------------------------------------------------------------
+
+def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: float = 0.5,
+                    spot_diffusivity_tensor: Mapping | None = None) -> dict[str, np.ndarray]:
+    """Particle drift ``u_p`` and diffusivity ``D_p`` of the spot model.
+
+    Implements (PHYSICS.md section 2, derivation in docs/coefficients.md)::
+
+        u_p = - w * (rho_s u_s - 2 lam div(D_s rho_s)) + (1 - 2 lam) wall layer
+        D_p =   w^2 * (rho_s D_s)
+
+    with ``u_s = v_s z_hat``, ``*`` the linear (zero-padded) convolution over the silo
+    (no spots outside it), ``div`` second-order differences on the grid (one-sided at the
+    boundaries), and the wall layer of the reflecting side walls (module docstring).
+    Convolutions sharing a kernel are done in one ``convolution.convolve`` call.
+
+    Args:
+        grid: the grid.
+        rho_s: mean spot density in spots per d**dims, grid-shaped.
+        spots: ``v_s`` (drift), ``b``, ``b_par``: floats or grid arrays.
+        kernel: influence kernel from :mod:`spotpde.kernels` (``sample``, ``evaluate``,
+            ``reach``).
+        rule: ``lam`` in [0, 1]: where along a spot step the influence is evaluated;
+            0.5 midpoint (default, the spot simulations' choice), 1 end point (the paper's
+            printed eq. up).
+        spot_diffusivity_tensor: optional full spot diffusivity tensor (keys ``D_xx``,
+            ``D_xz``, ...; floats or grid arrays) replacing ``diag(D_perp, D_par)``.
+
+    Returns:
+        ``{"u_x", ["u_y",] "u_z", "D_xx", "D_xz", "D_zz", ["D_yy", "D_xy", "D_yz"]}``:
+        grid-shaped float64 arrays, ``u`` in d per unit time, ``D`` in d**2 per unit time.
+    """
+    lam = _check_rule(rule)
+    rho_s = _check_inputs(grid, rho_s, kernel)
+    _check_coefficient(grid, "spots.drift", spots.drift)
+    D_s = spot_diffusivity(grid, spots, spot_diffusivity_tensor)
+    comps = _COMPONENTS[grid.dims]
+    v_s = spots.drift
+
+    conv = _Convolutions(grid, kernel)
+    constant = np.ndim(v_s) == 0 and all(np.ndim(d) == 0 for d in D_s.values())
+    if constant and min(grid.shape) >= 3:
+        fields = _constant_fields(grid, rho_s, float(v_s), D_s, lam, conv)
+        G = {key: None if _is_zero(d) else rho_s * d for key, d in D_s.items()}
+    else:
+        fields = _general_fields(grid, rho_s, v_s, D_s, lam, conv)
+        G = fields.pop("_G")
+
+    # wall layer of the reflecting side walls: (1 - 2 lam) int (D_s rho_s)^ab n_b w dA
+    if grid.walls == "reflecting" and lam != 0.5:
+        for n in comps:
+            if n == "z":
+                continue
+            axis = _axis(grid, n)
+            for a in comps:
+                g = G[_pair(a, n)]
+                if g is None:
+                    continue
+                faces = {-1: -_face_value(g, axis, -1), +1: _face_value(g, axis, +1)}
+                fields[f"u_{a}"] += (1.0 - 2.0 * lam) * _wall_layer(grid, kernel, n, faces)
+    order = DRIFT_KEYS[grid.dims] + DIFFUSIVITY_KEYS[grid.dims]
+    return {k: fields[k] for k in order}
+
+
+# -- diagnostics ------------------------------------------------------------------------------
+
+def flux_velocity(grid: Grid, fields: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Probability-flux velocity ``u_p - div D_p`` of particles at uniform density.
+
+    The Fokker-Planck flux is ``J = u_p P - div(D_p P)``; at uniform ``P`` it is
+    ``P (u_p - div D_p)``, the mean (Eulerian) velocity a kinematic model describes
+    (PHYSICS.md section 3). Derivatives are second-order grid differences.
+
+    Args:
+        grid: the grid.
+        fields: output of :func:`particle_fields`.
+
+    Returns:
+        ``{"u_x", ["u_y",] "u_z"}`` in d per unit time.
+    """
+    div = divergence(grid, {k: fields[k] for k in DIFFUSIVITY_KEYS[grid.dims]})
+    return {f"u_{a}": np.asarray(fields[f"u_{a}"], dtype=float) - div[a]
+            for a in _COMPONENTS[grid.dims]}
+
+
+def incompressibility_defect(grid: Grid, fields: Mapping[str, np.ndarray]) -> np.ndarray:
+    """``div(u_p - div D_p)``: the rate at which uniform particle density would change.
+
+    Zero for an incompressible mean particle flow (the kinematic model's assumption).
+
+    Args:
+        grid: the grid.
+        fields: output of :func:`particle_fields`.
+
+    Returns:
+        grid-shaped array in 1 / unit time.
+    """
+    flux = flux_velocity(grid, fields)
+    return sum(_gradient(grid, flux[f"u_{a}"], a) for a in _COMPONENTS[grid.dims])
+
+
+def _as_point(grid: Grid, r, name: str) -> np.ndarray:
+    p = np.asarray(r, dtype=float).reshape(-1)
+    if p.shape != (grid.dims,):
+        raise ValueError(f"{name}: a point needs {grid.dims} coordinates "
+                         f"({', '.join(_COMPONENTS[grid.dims])}), got {r!r}")
+    return p
+
+
+def _cross_integrals(grid: Grid, rho_s: np.ndarray, D_s: Mapping, kernel, r1: np.ndarray,
+                     r2: np.ndarray) -> dict[str, float]:
+    """``X^ab(r1, r2) = integral rho_s D_s^ab w(r1 - s) w(r2 - s) ds`` over the silo.
+
+    Sub-samples every cell ``_SUBSAMPLE`` times per axis (rho_s, D_s constant per cell;
+    fewer when the box would exceed ``_MAX_POINTS`` points), on the cells within the
+    kernel's reach of both points, slab by slab in z.
+    """
+    comps = _COMPONENTS[grid.dims]
+    h = grid.spacing
+    reach_h, reach_v = kernel.reach
+    coords = grid.coords()
+    sl = []
+    for c in grid.axes:  # array order
+        reach = reach_v if c == "z" else reach_h
+        i = comps.index(c)
+        lo, hi = max(r1[i], r2[i]) - reach - h, min(r1[i], r2[i]) + reach + h
+        idx = np.nonzero((coords[c] >= lo) & (coords[c] <= hi))[0]
+        if idx.size == 0:
+            return {k: 0.0 for k in DIFFUSIVITY_KEYS[grid.dims]}
+        sl.append(slice(idx[0], idx[-1] + 1))
+    sl = tuple(sl)
+    n_cells = int(np.prod([x.stop - x.start for x in sl]))
+    # sub-samples per cell and axis: _SUBSAMPLE, fewer if the box is large (bounded work)
+    ns = int(max(1, min(_SUBSAMPLE, np.floor((_MAX_POINTS / n_cells) ** (1.0 / grid.dims)))))
+    sub = ((np.arange(ns) + 0.5) / ns - 0.5) * h
+    dv = (h / ns) ** grid.dims
+    terms = {k: d for k, d in D_s.items() if not _is_zero(d)}
+    out = {k: 0.0 for k in D_s}
+
+    def refine(a, s_):
+        if np.ndim(a) == 0:
+            return a
+        a = np.asarray(a, dtype=float)[s_]
+        for ax in range(a.ndim):
+            a = np.repeat(a, ns, axis=ax)
+        return a
+
+    z_slice = sl[0]
+    per_row = max(1, n_cells // (z_slice.stop - z_slice.start))
+    step = max(1, int(_MAX_POINTS // (per_row * ns**grid.dims)) or 1)
+    for k0 in range(z_slice.start, z_slice.stop, step):  # slabs in z bound the memory
+        s_ = (slice(k0, min(k0 + step, z_slice.stop)),) + sl[1:]
+        pts = [np.add.outer(coords[c][x], sub).ravel() for c, x in zip(grid.axes, s_)]
+        mesh = dict(zip(grid.axes, np.meshgrid(*pts, indexing="ij", sparse=True)))
+        w1 = kernel.evaluate(*[r1[comps.index(c)] - mesh[c] for c in comps])
+        w2 = kernel.evaluate(*[r2[comps.index(c)] - mesh[c] for c in comps])
+        base = refine(rho_s, s_) * w1 * w2
+        for k, d in terms.items():
+            out[k] += float(np.sum(base * refine(d, s_)) * dv)
+    return out
+
+
+def velocity_correlation(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, r1, r2,
+                         spot_diffusivity_tensor: Mapping | None = None) -> dict[str, float]:
+    """Two-point particle velocity correlation tensor ``C_p(r1, r2)`` (the paper's eq. Cp).
+
+    ``C^ab = X^ab(r1, r2) / sqrt(X^aa(r1, r1) X^bb(r2, r2))`` with
+    ``X^ab(r1, r2) = integral rho_s D_s^ab w(r1 - s) w(r2 - s) ds``, so ``X(r, r) = D_p(r)``.
+    The normalisation uses the diagonal components, as the definition eq. Cdef does
+    (the printed eq. Cp writes ``D_p^ab`` under the root, which is only right for
+    ``a = b``). In uniform flow ``C^aa`` is the kernel's ``correlation(r1 - r2)``.
+    Integrals are sub-sampled quadratures over the silo (zero outside it).
+
+    Args:
+        grid: the grid.
+        rho_s: spot density, grid-shaped.
+        spots: spot parameters (``D_s``).
+        kernel: influence kernel (``evaluate``, ``reach``).
+        r1, r2: points ``(x, z)`` or ``(x, y, z)`` in d.
+        spot_diffusivity_tensor: optional full ``D_s`` (see :func:`particle_fields`).
+
+    Returns:
+        ``{"C_xx": ..., "C_xz": ..., ...}`` (dimensionless; 0 where a component of ``D_s``
+        vanishes).
+    """
+    rho_s = _check_inputs(grid, rho_s, kernel)
+    p1, p2 = _as_point(grid, r1, "r1"), _as_point(grid, r2, "r2")
+    D_s = spot_diffusivity(grid, spots, spot_diffusivity_tensor)
+    X = _cross_integrals(grid, rho_s, D_s, kernel, p1, p2)
+    X1 = _cross_integrals(grid, rho_s, D_s, kernel, p1, p1)
+    X2 = _cross_integrals(grid, rho_s, D_s, kernel, p2, p2)
+    out = {}
+    for key in DIFFUSIVITY_KEYS[grid.dims]:
+        a, b = key[2], key[3]
+        norm = np.sqrt(X1[f"D_{a}{a}"] * X2[f"D_{b}{b}"])
+        out["C_" + key[2:]] = X[key] / norm if norm > 0 else 0.0
+    return out
+
+
+def pair_diffusivity(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, r1, r2,
+                     spot_diffusivity_tensor: Mapping | None = None) -> dict[str, float]:
+    """Diffusivity tensor of the separation ``r1 - r2`` of two tracer particles.
+
+    ``D^ab(r1, r2) = D_p^ab(r1) + D_p^ab(r2) - 2 X^ab(r1, r2)`` with ``X`` the cross
+    integral of :func:`velocity_correlation` (the paper's section "Relative Diffusion of
+    Two Tracers"); in uniform flow ``D^aa = 2 D_p^aa (1 - C_p^aa(r))``.
+
+    Args:
+        grid, rho_s, spots, kernel, r1, r2, spot_diffusivity_tensor: as in
+            :func:`velocity_correlation`.
+
+    Returns:
+        ``{"D_xx": ..., "D_xz": ..., ...}`` in d**2 per unit time.
+    """
+    rho_s = _check_inputs(grid, rho_s, kernel)
+    p1, p2 = _as_point(grid, r1, "r1"), _as_point(grid, r2, "r2")
+    D_s = spot_diffusivity(grid, spots, spot_diffusivity_tensor)
+    X = _cross_integrals(grid, rho_s, D_s, kernel, p1, p2)
+    X1 = _cross_integrals(grid, rho_s, D_s, kernel, p1, p1)
+    X2 = _cross_integrals(grid, rho_s, D_s, kernel, p2, p2)
+    return {k: X1[k] + X2[k] - 2.0 * X[k] for k in DIFFUSIVITY_KEYS[grid.dims]}

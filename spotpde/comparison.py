@@ -1,0 +1,376 @@
+"""The spot model's mean particle flow against the Kinematic Model, height by height.
+
+The mean (Eulerian) particle velocity a kinematic model describes is the flux velocity
+``u_f = u_p - div D_p`` (PHYSICS.md section 3; :func:`spotpde.coefficients.flux_velocity`).
+The Kinematic Model with the same ``b`` and orifice, carrying the flux ``V1 Q0``, is
+``v_kin`` (downward speed, ``dv/dz = b lap_perp v``) with ``u_perp = b grad_perp v_kin``.
+
+In the local limit with constant coefficients and ``D_par = 0``
+(docs/coefficients.md)::
+
+    -u_f,z   = V1 v_s rho_s                         = v_kin      (any rule)
+    u_f,perp = (2 lam V1 - V2) b v_s grad_perp rho_s = (2 lam - V2/V1) b grad_perp v
+
+so the downward speeds agree for every ``lam`` while the horizontal (converging)
+velocity matches the kinematic ``b grad_perp v`` only for ``lam = 1/2 + V2 / (2 V1)``:
+the midpoint rule is off by the factor ``1 - V2/V1`` (``V2/V1 = w`` for a uniform
+kernel, 0.24 % with the paper's numbers), the printed end-point rule ``lam = 1`` by
+``2 - V2/V1``: its particles converge about twice as fast as the downward speed allows,
+so the mean flow is compressible (``div u_f != 0``) and its streamlines differ.
+
+:func:`compare_with_kinematic` measures all of this on a case: per height the relative
+L2 difference of the downward speeds, the effective ``b`` of Gaussian fits to both
+profiles, the effective ``b`` of the horizontal flux velocity (least-squares
+``u_f,x = b_h d_x v_spot``), the incompressibility defect, and streamlines of both flows.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+from scipy.optimize import OptimizeWarning, curve_fit
+
+from . import coefficients, kinematic, spot_density
+from .grid import Grid
+
+__all__ = ["KinematicComparison", "compare_with_kinematic", "compare_rules", "gaussian_width2",
+           "plot_comparison"]
+
+
+@dataclasses.dataclass
+class KinematicComparison:
+    """Per-height comparison of the spot-model mean flow with the Kinematic Model.
+
+    Attributes:
+        rule: lam used for the spot model.
+        b: the spots' horizontal diffusion length (the kinematic model's ``b``), d.
+        V1, V2: kernel interaction volumes, d**dims.
+        z: compared heights (cell centres), d.
+        speed_l2: ``||v_spot - v_kin|| / ||v_kin||`` across each height, with
+            ``v_spot = -u_f,z`` the spot model's mean downward speed.
+        width2_spot, width2_kin: squared widths ``s**2`` of Gaussian fits
+            ``A exp(-(x - x0)**2 / (2 s**2))`` to the two speed profiles, d**2.
+        b_speed_spot, b_speed_kin: effective ``b = (1/2) d(s**2)/dz`` of those fits, d.
+        b_horizontal: least-squares ``b_h`` in ``u_f,x = b_h d_x v_spot``, d (the
+            kinematic model has ``b_h = b``).
+        horizontal_l2: ``||u_f,x - b d_x v_kin|| / ||b d_x v_kin||`` across each height.
+        defect: ``||div u_f|| / ||d_z v_spot||`` across each height (0: incompressible).
+        flux_deficit: ``1 - integral(v_spot dA) / (V1 Q0)`` per height (whole cross
+            section), the particle flux lost because spots near a wall move no particles
+            beyond it.
+
+    All per-height numbers except ``flux_deficit`` use the columns farther than the
+    kernel's horizontal reach from the side walls (3D: the plane through the orifice).
+        starts: streamline start points ``(m, dims)``.
+        streamlines_spot, streamlines_kin: paths ``(n, dims)`` (columns ``x, [y,] z``).
+        streamline_shift: per start, ``|x_spot - x_kin|`` at the height ``shift_height``.
+        shift_height: where the streamlines are compared, d.
+    """
+
+    rule: float
+    b: float
+    V1: float
+    V2: float
+    z: np.ndarray
+    speed_l2: np.ndarray
+    width2_spot: np.ndarray
+    width2_kin: np.ndarray
+    b_speed_spot: np.ndarray
+    b_speed_kin: np.ndarray
+    b_horizontal: np.ndarray
+    horizontal_l2: np.ndarray
+    defect: np.ndarray
+    flux_deficit: np.ndarray
+    starts: np.ndarray
+    streamlines_spot: list
+    streamlines_kin: list
+    streamline_shift: np.ndarray
+    shift_height: float
+
+    def summary(self) -> dict[str, float]:
+        """Medians over the compared heights, and the largest streamline shift."""
+        def med(a):
+            a = np.asarray(a, dtype=float)
+            return float(np.nanmedian(a)) if np.any(np.isfinite(a)) else float("nan")
+
+        return {
+            "rule": self.rule,
+            "b": self.b,
+            "V2/V1": self.V2 / self.V1,
+            "speed_l2": med(self.speed_l2),
+            "b_speed_spot": med(self.b_speed_spot),
+            "b_speed_kin": med(self.b_speed_kin),
+            "b_horizontal": med(self.b_horizontal),
+            "b_horizontal/b": med(self.b_horizontal) / self.b,
+            "horizontal_l2": med(self.horizontal_l2),
+            "defect": med(self.defect),
+            "flux_deficit": med(self.flux_deficit),
+            "streamline_shift_max": float(np.nanmax(self.streamline_shift))
+            if self.streamline_shift.size else float("nan"),
+        }
+
+
+def _parts(case_or_parts):
+    """(grid, orifice, spots, kernel, rule, rho_s or None) from a Case or a mapping."""
+    if isinstance(case_or_parts, Mapping):
+        p = case_or_parts
+        missing = [k for k in ("grid", "orifice", "spots", "kernel") if k not in p]
+        if missing:
+            raise ValueError(f"compare_with_kinematic: parts lack {missing}; need grid, orifice, "
+                             "spots, kernel (optional: rule, rho_s)")
+        return p["grid"], p["orifice"], p["spots"], p["kernel"], p.get("rule", 0.5), p.get("rho_s")
+    c = case_or_parts
+    for attr in ("grid", "orifice", "spots", "kernel", "rule"):
+        if not hasattr(c, attr):
+            raise ValueError("compare_with_kinematic: expected a spotpde Case or a mapping with "
+                             f"grid, orifice, spots, kernel; got {type(c).__name__} without {attr!r}")
+    return c.grid, c.orifice, c.spots, c.kernel, c.rule, None
+
+
+def gaussian_width2(x: np.ndarray, profile: np.ndarray) -> float:
+    """Squared width ``s**2`` of a least-squares Gaussian ``A exp(-(x - x0)**2 / (2 s**2))``.
+
+    Args:
+        x: positions, d.
+        profile: non-negative values at ``x``.
+
+    Returns:
+        ``s**2`` in d**2 (NaN if the fit fails).
+    """
+    p = np.asarray(profile, dtype=float)
+    total = p.sum()
+    if not np.isfinite(total) or total <= 0:
+        return float("nan")
+    m = (x * p).sum() / total
+    var = ((x - m) ** 2 * p).sum() / total
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", OptimizeWarning)  # covariance not needed
+            popt, _ = curve_fit(lambda x, A, x0, s2: A * np.exp(-(x - x0) ** 2 / (2 * s2)), x, p,
+                                p0=(p.max(), m, max(var, 1e-6)), maxfev=2000)
+    except (RuntimeError, ValueError):
+        return float("nan")
+    return float(popt[2])
+
+
+def _row(grid: Grid, a: np.ndarray, y_index: int) -> np.ndarray:
+    """The ``(z, x)`` plane through ``y_index`` (3D) or the array itself (2D)."""
+    return a if grid.dims == 2 else a[:, y_index, :]
+
+
+def _norm_rows(a: np.ndarray) -> np.ndarray:
+    return np.sqrt(np.sum(a * a, axis=-1))
+
+
+def _path_x_at(path: np.ndarray, z: float) -> float:
+    """Horizontal position where a downward path crosses height ``z`` (NaN if never)."""
+    zz = path[:, -1]
+    below = np.nonzero(zz <= z)[0]
+    if below.size == 0 or below[0] == 0:
+        return float("nan")
+    i = below[0]
+    t = (z - zz[i - 1]) / (zz[i] - zz[i - 1])
+    return float(path[i - 1, 0] + t * (path[i, 0] - path[i - 1, 0]))
+
+
+def compare_with_kinematic(case_or_parts, rule: float | None = None, *, z_min: float | None = None,
+                           n_streamlines: int = 7, start_height: float | None = None,
+                           shift_height: float | None = None, _shared: dict | None = None
+                           ) -> KinematicComparison:
+    """Compare the spot model's mean particle flow with the Kinematic Model.
+
+    Args:
+        case_or_parts: a :class:`spotpde.cases.Case`, or a mapping with ``grid``,
+            ``orifice``, ``spots``, ``kernel`` and optionally ``rule`` and ``rho_s``.
+        rule: lam for the spot model (default: the case's).
+        z_min: lowest compared height, d (default: 10 % of the height, away from the
+            orifice singularity; fits need at least 3 heights). Heights within the
+            kernel's vertical reach of the top are left out.
+        n_streamlines: number of streamlines of each flow (starts spread over the middle
+            half of the width at ``start_height``).
+        start_height: where streamlines start, d (default 90 % of the height).
+        shift_height: where streamlines are compared, d (default 25 % of the height).
+
+    Returns:
+        :class:`KinematicComparison`. The spot fields use the steady spot density of the
+        case; ``b`` must be uniform (the kinematic model's single ``b``).
+    """
+    grid, orifice, spots, kernel, case_rule, rho_s = _parts(case_or_parts)
+    lam = float(case_rule if rule is None else rule)
+    if np.ndim(spots.b) != 0 or np.ndim(spots.drift) != 0:
+        raise ValueError("compare_with_kinematic: spots.b and spots.drift must be uniform "
+                         "(the kinematic model has one b)")
+    b = float(spots.b)
+    shared = {} if _shared is None else _shared
+    if rho_s is None:
+        if "rho_s" not in shared:
+            shared["rho_s"] = spot_density.steady(grid, orifice, spots)
+        rho_s = shared["rho_s"]
+    V1, V2 = float(kernel.V1), float(kernel.V2)
+    if "kin" not in shared:
+        flux = V1 * orifice.rate_at(0.0)
+        kin = kinematic.velocity(grid, orifice, b)
+        shared["kin"] = {k: v * flux for k, v in kin.items()}
+    kin = shared["kin"]
+
+    fields = coefficients.particle_fields(grid, rho_s, spots, kernel, rule=lam)
+    flow = coefficients.flux_velocity(grid, fields)
+    defect_field = coefficients.incompressibility_defect(grid, fields)
+
+    h = grid.spacing
+    z0, z1 = grid.z_range
+    z_min = z0 + 0.1 * (z1 - z0) if z_min is None else float(z_min)
+    # heights below the top by more than the kernel's vertical reach (no spots above it)
+    rows = np.nonzero((grid.z >= z_min) & (grid.z <= z1 - float(kernel.reach[1]) - h))[0]
+    if rows.size < 3:
+        raise ValueError(f"z_min: leaves {rows.size} heights to compare, need at least 3")
+    yi = int(np.argmin(np.abs(grid.y - (orifice.y if orifice.y is not None else grid.y_centre)))) \
+        if grid.dims == 3 else 0
+
+    # columns farther than the kernel's reach from the side walls (near a wall the zero
+    # padding, no particles or spots beyond it, lowers v_spot: reported as flux_deficit)
+    reach_h = float(kernel.reach[0])
+    x0, x1 = grid.x_range
+    cols = np.nonzero((grid.x - x0 > reach_h) & (x1 - grid.x > reach_h))[0]
+    if cols.size < 5:
+        raise ValueError(f"grid: the domain is too narrow for the kernel reach {reach_h:g} d "
+                         "to leave columns away from the walls")
+    sel = np.ix_(rows, cols)
+    full_v_spot = _row(grid, -flow["u_z"], yi)
+    horizontal_axes = tuple(range(1, grid.dims))
+    flux_deficit = 1.0 - (-flow["u_z"][rows]).sum(axis=horizontal_axes) * h ** (grid.dims - 1) / (
+        V1 * orifice.rate_at(0.0))
+    v_spot = full_v_spot[sel]
+    v_kin = _row(grid, -kin["u_z"], yi)[sel]
+    ux_spot = _row(grid, flow["u_x"], yi)[sel]
+    ux_kin = _row(grid, kin["u_x"], yi)[sel]
+    dx_v_spot = np.gradient(full_v_spot, h, axis=-1, edge_order=2)[sel]
+    dz_v_spot = np.gradient(full_v_spot, h, axis=0, edge_order=2)[sel]
+    defect = _norm_rows(_row(grid, defect_field, yi)[sel]) / _norm_rows(dz_v_spot)
+
+    speed_l2 = _norm_rows(v_spot - v_kin) / _norm_rows(v_kin)
+    horizontal_l2 = _norm_rows(ux_spot - ux_kin) / _norm_rows(ux_kin)
+    b_h = np.sum(ux_spot * dx_v_spot, axis=-1) / np.sum(dx_v_spot**2, axis=-1)
+    w2_spot = np.array([gaussian_width2(grid.x[cols], p) for p in v_spot])
+    w2_kin = np.array([gaussian_width2(grid.x[cols], p) for p in v_kin])
+    zc = grid.z[rows]
+    b_spot = 0.5 * np.gradient(w2_spot, zc)
+    b_kin = 0.5 * np.gradient(w2_kin, zc)
+
+    # streamlines of both flows from the same starts, by the same integrator
+    start_height = z0 + 0.9 * (z1 - z0) if start_height is None else float(start_height)
+    shift_height = z0 + 0.25 * (z1 - z0) if shift_height is None else float(shift_height)
+    xc = orifice.x
+    half = 0.25 * (x1 - x0)
+    xs = np.linspace(max(x0 + h, xc - half), min(x1 - h, xc + half), n_streamlines)
+    if grid.dims == 2:
+        starts = np.column_stack([xs, np.full_like(xs, start_height)])
+    else:
+        starts = np.column_stack([xs, np.full_like(xs, grid.y[yi]), np.full_like(xs, start_height)])
+    if n_streamlines > 0:
+        paths_spot = kinematic.streamlines(flow, grid, starts)
+        paths_kin = kinematic.streamlines(kin, grid, starts)
+        shift = np.array([abs(_path_x_at(p, shift_height) - _path_x_at(q, shift_height))
+                          for p, q in zip(paths_spot, paths_kin)])
+    else:
+        paths_spot, paths_kin, shift = [], [], np.zeros(0)
+
+    return KinematicComparison(
+        rule=lam, b=b, V1=V1, V2=V2, z=zc, speed_l2=speed_l2, width2_spot=w2_spot,
+        width2_kin=w2_kin, b_speed_spot=b_spot, b_speed_kin=b_kin, b_horizontal=b_h,
+        horizontal_l2=horizontal_l2, defect=defect, flux_deficit=flux_deficit, starts=starts,
+        streamlines_spot=paths_spot,
+        streamlines_kin=paths_kin, streamline_shift=shift, shift_height=shift_height)
+
+
+def compare_rules(case_or_parts, rules: Sequence[float] = (0.5, 1.0), **kwargs
+                  ) -> dict[float, KinematicComparison]:
+    """:func:`compare_with_kinematic` for several rules, sharing ``rho_s`` and ``v_kin``.
+
+    Args:
+        case_or_parts: as :func:`compare_with_kinematic`.
+        rules: the lam values to compare.
+        **kwargs: passed on to :func:`compare_with_kinematic`.
+
+    Returns:
+        ``{lam: KinematicComparison}``.
+    """
+    shared: dict = {}
+    return {float(r): compare_with_kinematic(case_or_parts, r, _shared=shared, **kwargs)
+            for r in rules}
+
+
+def plot_comparison(comparisons: Mapping[float, KinematicComparison], path=None):
+    """Figure: speed difference, effective b (vertical and horizontal), streamlines.
+
+    Args:
+        comparisons: ``{lam: KinematicComparison}`` (e.g. from :func:`compare_rules`).
+        path: where to save a PNG; ``None`` returns the figure unsaved.
+
+    Returns:
+        The matplotlib figure.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(1, 3, figsize=(13, 4.2))
+    for lam, c in comparisons.items():
+        ax[0].semilogy(c.z, c.speed_l2, label=f"speed, rule {lam:g}")
+        ax[0].semilogy(c.z, c.horizontal_l2, "--", label=f"horizontal, rule {lam:g}")
+        ax[1].plot(c.z, c.b_speed_spot, label=f"b from v_spot, rule {lam:g}")
+        ax[1].plot(c.z, c.b_horizontal, "--", label=f"b from u_x, rule {lam:g}")
+        for p in c.streamlines_spot:
+            ax[2].plot(p[:, 0], p[:, -1], lw=1, label=None)
+    first = next(iter(comparisons.values()))
+    ax[1].plot(first.z, first.b_speed_kin, "k:", label="b from v_kin")
+    for p in first.streamlines_kin:
+        ax[2].plot(p[:, 0], p[:, -1], "k:", lw=1)
+    ax[0].set(xlabel="z (d)", ylabel="relative L2 difference", title="spot vs kinematic")
+    ax[1].set(xlabel="z (d)", ylabel="effective b (d)")
+    ax[2].set(xlabel="x (d)", ylabel="z (d)", title="streamlines (dotted: kinematic)")
+    ax[0].legend(fontsize=7)
+    ax[1].legend(fontsize=7)
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path, dpi=120)
+    return fig
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m spotpde.comparison CASE.toml [--rules 0.5 1] [-o FIG.png]``.
+
+    Prints the per-rule summary (medians over heights) and writes the comparison figure.
+    Exit status 0, or 2 for an invalid case.
+    """
+    import argparse
+    import sys
+
+    from .cases import load_case
+    from .errors import CaseError
+
+    parser = argparse.ArgumentParser(prog="python -m spotpde.comparison",
+                                     description="Spot-model mean flow against the Kinematic Model.")
+    parser.add_argument("case", help="case file (TOML)")
+    parser.add_argument("--rules", type=float, nargs="+", default=[0.5, 1.0], help="lam values")
+    parser.add_argument("-o", "--output", default=None, help="figure path (PNG)")
+    args = parser.parse_args(argv)
+    try:
+        case = load_case(args.case)
+        results = compare_rules(case, args.rules)
+    except (CaseError, ValueError) as exc:
+        print(str(exc), file=sys.stderr)
+        return 2
+    for lam, c in results.items():
+        print(" ".join(f"{k}={v:.6g}" for k, v in c.summary().items()))
+    if args.output:
+        plot_comparison(results, args.output)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

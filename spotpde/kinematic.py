@@ -1,0 +1,220 @@
+"""The Kinematic Model of silo drainage (PHYSICS.md section 4; paper eqs. law, kin).
+
+Downward speed ``v`` and horizontal velocity ``u_perp`` of the particles obey
+
+    u_perp = b grad_perp v,        d v / dz = b lap_perp v,
+
+the second being incompressibility ``div_perp u_perp - dv/dz = 0`` (the vertical
+velocity is ``u_z = -v``). The sign follows the void-model flux balance of the paper
+(eq. voidflux): ``rho_p (u, -v) = -v0 (-b grad_perp rho_v, rho_v)``, so ``u`` points
+up the gradient of ``v``, toward the faster-flowing centre: particles converge on the
+orifice as they fall. ``v`` obeys the same equation as the steady spot flux
+``v_s rho_s`` with ``D_par = 0``, so :func:`speed` reuses :mod:`spotpde.spot_density`
+(unit source rate, unit spot drift).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from numba import njit
+from scipy.integrate import solve_ivp
+
+from .errors import CaseError
+from .grid import Grid
+from .parameters import Orifice, Spots
+from . import spot_density
+
+__all__ = ["point_source", "speed", "velocity", "streamlines"]
+
+
+def point_source(x, z, b, dims: int = 2):
+    """Analytic downward speed below a point orifice (unit flux through every height).
+
+    2D: ``v = exp(-x**2 / (4 b z)) / sqrt(4 pi b z)``; 3D: ``v = exp(-r**2 / (4 b z)) /
+    (4 pi b z)`` with ``r`` the horizontal distance from the orifice (pass ``x = r``).
+    Each integrates to 1 over a horizontal line (plane) for every ``z > 0``.
+    At ``z < 0`` (below the floor) ``v = 0``; at ``z = 0``, the limit: 0 off the
+    orifice and ``inf`` at ``x = 0``.
+
+    Args:
+        x: horizontal offset (3D: horizontal distance ``r``) in d; array or float.
+        z: height above the orifice in d; broadcast with ``x``.
+        b: kinematic diffusion length in d (> 0).
+        dims: 2 or 3.
+
+    Returns:
+        ``v`` in 1/d**(dims-1) (times the flow rate for a speed), broadcast shape
+        (a float for scalar input).
+    """
+    if dims not in (2, 3):
+        raise CaseError(f"domain.dims: must be 2 or 3, got {dims!r}")
+    if not np.all(np.asarray(b) > 0):
+        raise CaseError(f"spots.b: must be > 0, got {b!r}")
+    x = np.asarray(x, dtype=float)
+    z = np.asarray(z, dtype=float)
+    x, z = np.broadcast_arrays(x, z)
+    out = np.zeros(x.shape)
+    pos = z > 0
+    zz = z[pos]
+    four_bz = 4.0 * b * zz if np.ndim(b) == 0 else 4.0 * np.broadcast_to(b, x.shape)[pos] * zz
+    g = np.exp(-x[pos] ** 2 / four_bz)
+    out[pos] = g / np.sqrt(np.pi * four_bz) if dims == 2 else g / (np.pi * four_bz)
+    out[(z == 0) & (x == 0)] = np.inf
+    return float(out) if out.ndim == 0 else out
+
+
+def speed(grid: Grid, orifice: Orifice, b, progress=None) -> np.ndarray:
+    """Downward speed ``v`` for the case's orifice and walls, unit flux through every height.
+
+    Solves ``dv/dz = b lap_perp v`` (Ito form ``lap_perp(b v)`` when ``b`` varies, the
+    form the spot flux obeys) from ``v = s(x)`` on the floor (the orifice profile,
+    integrating to 1): ``sum(v) h**(dims-1) = 1`` at every height between reflecting
+    walls. The pipeline multiplies by ``V1 Q0`` to obtain ``v_kin``.
+
+    Args:
+        grid: the grid.
+        orifice: the orifice (its rate is ignored).
+        b: diffusion length in d, float or grid-shaped array.
+        progress: called with the fraction done.
+
+    Returns:
+        ``v`` in 1/d**(dims-1), grid shape: horizontal cell averages at the cell-centre
+        heights (within ``O(h**2)`` of the point values, e.g. of :func:`point_source`).
+    """
+    unit = dataclasses.replace(orifice, rate=1.0)
+    return spot_density.steady(grid, unit, Spots(drift=1.0, b=b, b_par=0.0), progress)
+
+
+def velocity(grid: Grid, orifice: Orifice, b, progress=None) -> dict[str, np.ndarray]:
+    """Kinematic velocity field: ``u_perp = b grad_perp v``, ``u_z = -v``.
+
+    The horizontal gradient is taken by second-order central differences
+    (``numpy.gradient``, one-sided second order at the walls).
+
+    Args:
+        grid, orifice, b: as :func:`speed`.
+
+    Returns:
+        dict ``u_x``, [``u_y``,] ``u_z`` (grid shape), for unit flow rate.
+    """
+    v = speed(grid, orifice, b, progress)
+    h = grid.spacing
+    bb = np.asarray(b, dtype=float)
+    out = {"u_x": bb * np.gradient(v, h, axis=-1, edge_order=2)}
+    if grid.dims == 3:
+        out["u_y"] = bb * np.gradient(v, h, axis=1, edge_order=2)
+    out["u_z"] = -v
+    return out
+
+
+@njit(cache=True)
+def _cell(lo, h, n, p):
+    """Lower cell-centre index and fraction along one axis (linear extrapolation outside)."""
+    s = (p - lo) / h
+    i = min(max(int(np.floor(s)), 0), max(n - 2, 0))
+    return i, (s - i if n > 1 else 0.0)
+
+
+@njit(cache=True)
+def _linear2(fields, lo, h, p, out):
+    """Bilinear interpolation of every component of ``fields`` ``(ncomp, nz, nx)`` at ``p = (z, x)``."""
+    k, fz = _cell(lo[0], h, fields.shape[1], p[0])
+    i, fx = _cell(lo[1], h, fields.shape[2], p[1])
+    k1 = min(k + 1, fields.shape[1] - 1)
+    i1 = min(i + 1, fields.shape[2] - 1)
+    for c in range(fields.shape[0]):
+        f = fields[c]
+        out[c] = ((1 - fz) * ((1 - fx) * f[k, i] + fx * f[k, i1])
+                  + fz * ((1 - fx) * f[k1, i] + fx * f[k1, i1]))
+
+
+@njit(cache=True)
+def _linear3(fields, lo, h, p, out):
+    """Trilinear interpolation of ``fields`` ``(ncomp, nz, ny, nx)`` at ``p = (z, y, x)``."""
+    k, fz = _cell(lo[0], h, fields.shape[1], p[0])
+    j, fy = _cell(lo[1], h, fields.shape[2], p[1])
+    i, fx = _cell(lo[2], h, fields.shape[3], p[2])
+    k1 = min(k + 1, fields.shape[1] - 1)
+    j1 = min(j + 1, fields.shape[2] - 1)
+    i1 = min(i + 1, fields.shape[3] - 1)
+    for c in range(fields.shape[0]):
+        f = fields[c]
+        lo_z = ((1 - fy) * ((1 - fx) * f[k, j, i] + fx * f[k, j, i1])
+                + fy * ((1 - fx) * f[k, j1, i] + fx * f[k, j1, i1]))
+        hi_z = ((1 - fy) * ((1 - fx) * f[k1, j, i] + fx * f[k1, j, i1])
+                + fy * ((1 - fx) * f[k1, j1, i] + fx * f[k1, j1, i1]))
+        out[c] = (1 - fz) * lo_z + fz * hi_z
+
+
+def streamlines(fields: dict[str, np.ndarray], grid: Grid, starts, max_length: float | None = None,
+                rtol: float = 1e-6) -> list[np.ndarray]:
+    """Trace particle paths of a velocity field from start points down to the floor.
+
+    Integrates ``dX/ds = u(X) / |u(X)|`` (arc length ``s``, so slow stagnant regions
+    cost nothing extra) with ``scipy.integrate.solve_ivp`` (RK45) on the (bi/tri)linearly
+    interpolated field (a numba kernel), until the path reaches the first cell-centre level
+    ``z0 + h/2`` (then one straight segment to the floor ``z0`` along the last
+    direction), leaves the domain, or the length exceeds ``max_length``.
+
+    Args:
+        fields: dict with ``u_x``, [``u_y``,] ``u_z`` (grid shape), e.g. from :func:`velocity`.
+        grid: the grid the fields live on.
+        starts: start points, shape ``(m, dims)``, columns ``(x, [y,] z)`` in d.
+        max_length: longest path in d (default: 4 x (height + width)).
+        rtol: relative tolerance of the integrator.
+
+    Returns:
+        One ``(n, dims)`` array per start, columns ``(x, [y,] z)`` in d.
+    """
+    starts = np.atleast_2d(np.asarray(starts, dtype=float))
+    dims = grid.dims
+    if starts.shape[1] != dims:
+        raise CaseError(f"streamlines: starts must have {dims} columns (x, [y,] z), got {starts.shape}")
+    names = ["u_x"] + (["u_y"] if dims == 3 else []) + ["u_z"]
+    missing = [n for n in names if n not in fields]
+    if missing:
+        raise CaseError(f"streamlines: fields lack {missing}; need {names}")
+    stack = np.stack([np.asarray(fields[n], dtype=float) for n in names])
+    if stack.shape[1:] != grid.shape:
+        raise CaseError(f"streamlines: fields must have the grid shape {grid.shape}, got {stack.shape[1:]}")
+    lo = np.array([grid.z[0]] + ([grid.y[0]] if dims == 3 else []) + [grid.x[0]])
+    u = np.empty(dims)
+    interp = _linear2 if dims == 2 else _linear3
+    z0, z1 = grid.z_range
+    x0, x1 = grid.x_range
+    h = grid.spacing
+    floor_level = z0 + 0.5 * h
+    if max_length is None:
+        max_length = 4.0 * ((z1 - z0) + (x1 - x0))
+
+    def rhs(_s, X):
+        p = np.ascontiguousarray(X[::-1])             # (x, [y,] z) -> array order (z, [y,] x)
+        interp(stack, lo, h, p, u)
+        norm = np.linalg.norm(u)
+        return u / norm if norm > 0 else np.zeros(dims)
+
+    def reach_floor(_s, X):
+        return X[-1] - floor_level
+    reach_floor.terminal = True
+    reach_floor.direction = -1
+
+    def leave(_s, X):
+        inside = min(X[:-1].min() - x0, x1 - X[:-1].max(), z1 - X[-1])
+        return inside + 1e-9
+    leave.terminal = True
+    leave.direction = -1
+
+    paths = []
+    for X0 in starts:
+        sol = solve_ivp(rhs, (0.0, max_length), X0, events=(reach_floor, leave), rtol=rtol,
+                        atol=1e-8, max_step=h, dense_output=False)
+        path = sol.y.T
+        if sol.status == 1 and len(sol.t_events[0]) and path[-1, -1] > z0:
+            d = rhs(0.0, path[-1])
+            if d[-1] < 0:
+                step = (path[-1, -1] - z0) / -d[-1]
+                path = np.vstack([path, path[-1] + step * d])
+        paths.append(path)
+    return paths

@@ -1,0 +1,282 @@
+"""Spot sources on the floor: the horizontal injection profile and the rate Q0(t).
+
+Spots enter through the orifice, a part of the floor ``z = z0`` (PHYSICS.md section 1).
+The injection flux density is ``Q0(t) * s(x)`` (spots per unit time per d**(dims-1)),
+with ``s`` a density over the floor that integrates to 1.
+
+Profiles (``spotpde.parameters.Orifice``):
+
+* point (``width == 0``): regularised as *cloud in cell*: the unit mass goes to the
+  two (2D) or four (3D) cell centres around the point with linear weights. This keeps
+  the mass and the centroid exact; the second moment grows by ``f (1 - f) h**2`` per
+  axis (``f`` the fractional offset), so any field a distance ``z >> h`` above the
+  orifice differs from the point-source solution by ``O(h**2 / z)`` (docs/spot_density.md).
+* ``"uniform"``: slot ``|x - xc| <= W/2`` (2D) or disk of diameter ``W`` (3D), density
+  ``1/W`` (``4 / (pi W**2)``); cell values are exact cell averages (3D: edge cells
+  supersampled 16 x 16).
+* ``"gaussian"``: ``width = 2 sigma`` per horizontal axis; exact cell averages (erf).
+* ``width >= floor side`` (any profile): uniform flow over the whole floor.
+
+Reflecting walls fold the profile by the method of images (a part of the orifice
+beyond a wall is mirrored back inside), so the profile integrates to 1 and its cosine
+coefficients are those of the free profile (used by the spectral solver). Open walls
+clip the profile to the window and renormalise it (the solvers themselves work on a
+padded window, where no clipping happens).
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Sequence
+
+import numpy as np
+from scipy.special import erf, j1
+
+from .errors import CaseError
+from .grid import Grid
+from .parameters import PROFILES, Orifice
+
+__all__ = [
+    "source_profile",
+    "rate_from_table",
+    "validate",
+    "cosine_coefficients",
+    "is_uniform_flow",
+]
+
+
+# -- validation and rates -------------------------------------------------------------
+def validate(grid: Grid, orifice: Orifice) -> None:
+    """Raise :class:`CaseError` naming every invalid orifice key.
+
+    Args:
+        grid: the computational grid.
+        orifice: the orifice parameters.
+    """
+    problems = []
+    if orifice.profile not in PROFILES:
+        problems.append(
+            f"orifice.profile: must be one of {', '.join(map(repr, PROFILES))}, "
+            f"got {orifice.profile!r}"
+        )
+    if not (np.isfinite(orifice.width) and orifice.width >= 0):
+        problems.append(f"orifice.width: must be a finite number >= 0, got {orifice.width!r}")
+    x0, x1 = grid.x_range
+    if not (x0 <= orifice.x <= x1):
+        problems.append(f"orifice.x: must lie on the floor [{x0}, {x1}], got {orifice.x!r}")
+    if grid.dims == 3 and orifice.y is not None and not (x0 <= orifice.y <= x1):
+        problems.append(f"orifice.y: must lie on the floor [{x0}, {x1}], got {orifice.y!r}")
+    if not callable(orifice.rate):
+        q = float(orifice.rate)
+        if not (np.isfinite(q) and q >= 0):
+            problems.append(f"orifice.rate: must be a finite number >= 0, got {orifice.rate!r}")
+    if problems:
+        raise CaseError(problems)
+
+
+def rate_from_table(times: Sequence[float], values: Sequence[float]) -> Callable[[float], float]:
+    """Turn a table ``(times, values)`` of Q0 into a callable ``Q0(t)``.
+
+    Linear interpolation between entries; before the first (after the last) time the
+    first (last) value is held.
+
+    Args:
+        times: strictly increasing times (case time unit), at least one entry.
+        values: Q0 at those times, spots per unit time, each >= 0.
+
+    Returns:
+        A function of ``t`` returning a float (or an array for an array ``t``).
+    """
+    t = np.asarray(times, dtype=float)
+    q = np.asarray(values, dtype=float)
+    if t.ndim != 1 or q.shape != t.shape or t.size == 0:
+        raise CaseError(
+            f"orifice.rate: a table needs equal-length 1D times and values, got shapes "
+            f"{t.shape} and {q.shape}"
+        )
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(q))):
+        raise CaseError("orifice.rate: table entries must be finite numbers")
+    if np.any(np.diff(t) <= 0):
+        raise CaseError("orifice.rate: table times must be strictly increasing")
+    if np.any(q < 0):
+        raise CaseError(f"orifice.rate: table values must be >= 0, got min {q.min()}")
+
+    def rate(time):
+        out = np.interp(time, t, q)
+        return float(out) if np.ndim(out) == 0 else out
+
+    return rate
+
+
+def is_uniform_flow(grid: Grid, orifice: Orifice) -> bool:
+    """True when the orifice spans the whole floor (width >= the floor's side)."""
+    return orifice.width >= grid.x_range[1] - grid.x_range[0]
+
+
+def _centre(grid: Grid, orifice: Orifice) -> tuple[float, float]:
+    yc = grid.y_centre if orifice.y is None else float(orifice.y)
+    return float(orifice.x), yc
+
+
+# -- cell weights on one axis ------------------------------------------------------------
+def _fold(weights_ext: np.ndarray, pad: int, n: int, walls: str, axis: int) -> np.ndarray:
+    """Map weights on extended cells ``-pad .. n+pad-1`` into ``0 .. n-1``.
+
+    Reflecting walls mirror cell ``-1-j`` onto ``j`` (method of images, period ``2n``);
+    open walls drop the outside cells.
+    """
+    j = np.arange(-pad, n + pad)
+    if walls == "reflecting":
+        r = np.mod(j, 2 * n)
+        target = np.where(r < n, r, 2 * n - 1 - r)
+    else:
+        keep = (j >= 0) & (j < n)
+        return np.compress(keep, weights_ext, axis=axis)
+    w = np.moveaxis(weights_ext, axis, 0)
+    out = np.zeros((n,) + w.shape[1:])
+    np.add.at(out, target, w)
+    return np.moveaxis(out, 0, axis)
+
+
+def _axis_weights(lo: float, h: float, n: int, centre: float, width: float,
+                  profile: str, walls: str) -> np.ndarray:
+    """Cell masses (summing to 1 before clipping) of a 1D profile on ``n`` cells.
+
+    Point: cloud in cell. Uniform: exact overlap of ``[c - W/2, c + W/2]`` with each
+    cell divided by ``W``. Gaussian: ``Phi`` differences with ``sigma = width / 2``.
+    """
+    if width == 0.0:
+        s = (centre - lo) / h - 0.5          # position in units of cell centres
+        i0 = int(np.floor(s))
+        f = s - i0
+        pad = 2
+        w = np.zeros(n + 2 * pad)
+        w[i0 + pad] += 1.0 - f
+        w[i0 + 1 + pad] += f
+        return _fold(w, pad, n, walls, 0)
+    half = 0.5 * width if profile == "uniform" else 4.0 * width   # 8 sigma support
+    pad = int(np.ceil(max(0.0, max(lo - (centre - half), centre + half - (lo + n * h))) / h)) + 1
+    edges = lo + h * np.arange(-pad, n + pad + 1)
+    if profile == "uniform":
+        cdf = np.clip((edges - (centre - 0.5 * width)) / width, 0.0, 1.0)
+    else:
+        sigma = 0.5 * width
+        cdf = 0.5 * (1.0 + erf((edges - centre) / (np.sqrt(2.0) * sigma)))
+    return _fold(np.diff(cdf), pad, n, walls, 0)
+
+
+def _disk_weights(grid: Grid, xc: float, yc: float, diameter: float) -> np.ndarray:
+    """Cell masses of a uniform disk on the ``(ny, nx)`` floor (before folding)."""
+    h, n, lo = grid.spacing, grid.nx, grid.x_range[0]
+    R = 0.5 * diameter
+    pad = int(np.ceil(max(0.0, max(lo - (min(xc, yc) - R), max(xc, yc) + R - (lo + n * h))) / h)) + 1
+    c = lo + h * (np.arange(-pad, n + pad) + 0.5)
+    X, Y = np.meshgrid(c, c, indexing="xy")               # array order (y, x)
+    dx, dy = np.abs(X - xc), np.abs(Y - yc)
+    near = np.hypot(np.maximum(dx - h / 2, 0), np.maximum(dy - h / 2, 0))
+    far = np.hypot(dx + h / 2, dy + h / 2)
+    frac = np.where(far <= R, 1.0, 0.0)
+    edge = (near < R) & (far > R)
+    ns = 16
+    sub = (np.arange(ns) + 0.5) / ns - 0.5
+    for a, b in zip(*np.nonzero(edge)):
+        px = X[a, b] + h * sub[None, :]
+        py = Y[a, b] + h * sub[:, None]
+        frac[a, b] = np.mean((px - xc) ** 2 + (py - yc) ** 2 <= R * R)
+    w = frac / frac.sum()
+    w = _fold(w, pad, n, grid.walls, 0)
+    return _fold(w, pad, n, grid.walls, 1)
+
+
+# -- public profile --------------------------------------------------------------------
+def source_profile(grid: Grid, orifice: Orifice) -> np.ndarray:
+    """Horizontal density ``s`` of injected spots on the floor cells.
+
+    Args:
+        grid: the grid (its ``walls`` decide folding or clipping, see module doc).
+        orifice: centre, width, profile.
+
+    Returns:
+        ``s`` in d**-(dims-1), shape ``(nx,)`` (2D) or ``(ny, nx)`` (3D, array order),
+        with ``s.sum() * h**(dims-1) == 1`` to round-off. The injection flux density
+        through floor cell ``i`` is ``Q0(t) * s[i]``.
+    """
+    validate(grid, orifice)
+    h, n, lo = grid.spacing, grid.nx, grid.x_range[0]
+    measure = grid.horizontal_cell_measure
+    if is_uniform_flow(grid, orifice):
+        shape = (n,) if grid.dims == 2 else (n, n)
+        return np.full(shape, 1.0 / (n * n ** (grid.dims - 2) * measure))
+    xc, yc = _centre(grid, orifice)
+    if grid.dims == 2:
+        w = _axis_weights(lo, h, n, xc, orifice.width, orifice.profile, grid.walls)
+    elif orifice.profile == "uniform" and orifice.width > 0:
+        w = _disk_weights(grid, xc, yc, orifice.width)
+    else:
+        wx = _axis_weights(lo, h, n, xc, orifice.width, orifice.profile, grid.walls)
+        wy = _axis_weights(lo, h, n, yc, orifice.width, orifice.profile, grid.walls)
+        w = wy[:, None] * wx[None, :]
+    total = w.sum()
+    if not total > 0:
+        raise CaseError(
+            f"orifice.x: the orifice at x={orifice.x} (width {orifice.width}) injects nothing "
+            f"inside the floor {grid.x_range}"
+        )
+    return w / (total * measure)
+
+
+# -- spectral coefficients (reflecting walls) ---------------------------------------------
+def _axis_cosine(k: np.ndarray, X0: float, width: float, profile: str) -> np.ndarray:
+    """``integral f(x) cos(k (x - xa)) dx`` of a unit-mass 1D profile centred at ``X0 = xc - xa``."""
+    if width == 0.0:
+        return np.cos(k * X0)
+    if profile == "gaussian":
+        sigma = 0.5 * width
+        return np.cos(k * X0) * np.exp(-0.5 * (k * sigma) ** 2)
+    half = 0.5 * width
+    return np.cos(k * X0) * np.sinc(k * half / np.pi)      # sin(k W/2) / (k W/2)
+
+
+def cosine_coefficients(grid: Grid, orifice: Orifice, n_modes: int | None = None) -> np.ndarray:
+    """Cosine-series coefficients of the folded source between reflecting walls.
+
+    With ``L`` the floor side, ``k_n = n pi / L`` and ``X = x - x0``, the folded unit-mass
+    profile is ``s(x) = sum_n a_n cos(k_n X)`` (3D: ``sum a_nm cos(k_n X) cos(k_m Y)``),
+    ``a_n = (c_n / L) integral f(x) cos(k_n X) dx`` with ``c_0 = 1``, ``c_n = 2`` and ``f``
+    the free (unfolded) profile. Closed forms: point ``cos(k X_c)``; slot
+    ``cos(k X_c) sinc(k W / 2)``; Gaussian ``cos(k X_c) exp(-k**2 sigma**2 / 2)``; 3D disk
+    ``cos(k_n X_c) cos(k_m Y_c) 2 J1(kappa R) / (kappa R)``, ``kappa = |(k_n, k_m)|``.
+    By default the ``nx`` modes a cell-centred grid resolves are returned (the rest
+    decay as ``exp(-b (pi/h)**2 z)`` above the floor); ``n_modes`` asks for more.
+
+    Args:
+        grid: the grid (walls are assumed reflecting).
+        orifice: the orifice.
+        n_modes: number of modes per axis (default ``nx``).
+
+    Returns:
+        ``a`` of shape ``(n,)`` (2D) or ``(n, n)`` (3D, array order ``(y, x)``), in
+        d**-(dims-1), ``n = n_modes``.
+    """
+    validate(grid, orifice)
+    n, L = (n_modes or grid.nx), grid.x_range[1] - grid.x_range[0]
+    k = np.pi * np.arange(n) / L
+    c = np.where(np.arange(n) == 0, 1.0, 2.0) / L
+    if is_uniform_flow(grid, orifice):
+        a = np.zeros((n,) if grid.dims == 2 else (n, n))
+        a.flat[0] = 1.0 / L ** (grid.dims - 1)
+        return a
+    xc, yc = _centre(grid, orifice)
+    X0, Y0 = xc - grid.x_range[0], yc - grid.x_range[0]
+    if grid.dims == 2:
+        return c * _axis_cosine(k, X0, orifice.width, orifice.profile)
+    if orifice.profile == "uniform" and orifice.width > 0:
+        R = 0.5 * orifice.width
+        kappa = np.hypot(k[:, None], k[None, :])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            airy = np.where(kappa > 0, 2.0 * j1(kappa * R) / (kappa * R), 1.0)
+        ay = c * np.cos(k * Y0)
+        ax = c * np.cos(k * X0)
+        return ay[:, None] * ax[None, :] * airy
+    ax = c * _axis_cosine(k, X0, orifice.width, orifice.profile)
+    ay = c * _axis_cosine(k, Y0, orifice.width, orifice.profile)
+    return ay[:, None] * ax[None, :]

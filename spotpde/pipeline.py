@@ -1,0 +1,193 @@
+"""The run pipeline: a validated case in, the result Dataset out.
+
+Stages (each reports its progress)::
+
+    spot density     spot_density.solve(grid, orifice, spots)          -> rho_s
+    particle fields  coefficients.particle_fields(grid, rho_s, spots, kernel, rule)
+                     (tracer.model = "void": void.particle_fields(grid, rho_s, spots, V1))
+    kinematic model  kinematic.speed(grid, orifice, b) * V1 * Q0       -> v_kin
+    tracer           tracer.solve(grid, fields, P0, t_end, frames, limiter=, cfl=,
+                     diffusion=)                                        (optional)
+
+The Dataset has the CONTRACT.md variables and global attributes ``V1``, ``V2``, ``rule``,
+``model``, ``spotpde_version`` and ``case`` (the validated case as TOML).
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Callable
+
+import numpy as np
+import xarray as xr
+
+from ._version import __version__
+from .cases import Case, load_case
+from .errors import CaseError, NumericalError
+from .io import make_dataset
+from .parameters import TracerStart
+
+#: The pipeline's stages, in order, as reported to ``progress``.
+STAGES = ("spot density", "particle fields", "kinematic model", "tracer")
+
+Progress = Callable[[str, float], None]
+
+
+def run(case: Case | str, progress: Progress | None = None) -> xr.Dataset:
+    """Run a case.
+
+    Args:
+        case: a :class:`spotpde.cases.Case` (or a path / mapping for :func:`load_case`).
+        progress: optional ``progress(stage, fraction)`` callback, ``stage`` one of
+            :data:`STAGES`, ``fraction`` in 0..1 (a few hundred calls per stage at most).
+
+    Returns:
+        The result :class:`xarray.Dataset` (lengths in d, times in the case unit).
+
+    Raises:
+        spotpde.CaseError: invalid case.
+        spotpde.NumericalError: a solver blew up, or a result holds NaN or infinity.
+    """
+    if not isinstance(case, Case):
+        case = load_case(case)
+    try:
+        return _run(case, progress)
+    except CaseError as err:
+        # The case passed validation, so a solver refusing its inputs here is refusing
+        # derived data (fields, densities): a numerical failure, not an invalid case.
+        raise NumericalError("; ".join(err.problems)) from None
+
+
+def _run(case: Case, progress: Progress | None) -> xr.Dataset:
+    grid, orifice, spots = case.grid, case.orifice, case.spots
+
+    spot_density = importlib.import_module("spotpde.spot_density")
+    rho_s = spot_density.solve(grid, orifice, spots, progress=_stage(progress, "spot density"))
+    rho_s = _final_frame(np.asarray(rho_s, dtype=float), grid)
+    _check_finite("rho_s", rho_s)
+    rho_s = _clip_roundoff(rho_s)
+
+    stage = _stage(progress, "particle fields") or _noop
+    stage(0.0)
+    if case.model == "void":
+        void = importlib.import_module("spotpde.void")
+        V1 = float(case.kernel.V1)
+        V2 = V1
+        fields = void.particle_fields(grid, rho_s, spots, V1)
+    else:
+        coefficients = importlib.import_module("spotpde.coefficients")
+        kernel = case.kernel
+        V1, V2 = float(kernel.V1), float(kernel.V2)
+        fields = coefficients.particle_fields(grid, rho_s, spots, kernel, rule=case.rule)
+    fields = {name: np.asarray(a, dtype=float) for name, a in fields.items()}
+    stage(1.0)
+
+    stage = _stage(progress, "kinematic model") or _noop
+    stage(0.0)
+    kinematic = importlib.import_module("spotpde.kinematic")
+    b = float(np.mean(spots.b))
+    q0 = orifice.rate_at(spots.t_end if spots.mode == "transient" else 0.0)
+    v_kin = np.asarray(kinematic.speed(grid, orifice, b), dtype=float) * V1 * q0
+    stage(1.0)
+
+    out = {"rho_s": rho_s, "v_kin": v_kin, **fields}
+    times = None
+    if case.tracer is not None:
+        tracer = importlib.import_module("spotpde.tracer")
+        P0 = initial_density(grid, case.tracer.start)
+        res = tracer.solve(grid, fields, P0, case.tracer.t_end, case.tracer.frames,
+                           progress=_stage(progress, "tracer"), **case.tracer_options)
+        times = np.asarray(res.times, dtype=float)
+        out.update(P=res.P, P_height=res.P_height, mass=res.mass, outflow=res.outflow)
+    for name, arr in out.items():
+        _check_finite(name, np.asarray(arr, dtype=float))
+
+    attrs = {
+        "title": "spotpde result: spot model of granular drainage (Bazant 2004)",
+        "V1": V1,
+        "V2": V2,
+        "rule": float(case.rule),
+        "model": case.model,
+        "dims": int(grid.dims),
+        "spotpde_version": __version__,
+        "case": case.to_toml(),
+    }
+    if case.source is not None:
+        attrs["case_file"] = str(case.source)
+    return make_dataset(grid, out, times=times, attrs=attrs)
+
+
+def initial_density(grid, start: TracerStart) -> np.ndarray:
+    """Initial tracer density ``P0`` on the grid, normalised so ``sum(P0) h**dims = 1``.
+
+    Args:
+        grid: :class:`spotpde.grid.Grid`.
+        start: ``kind="blob"``: a Gaussian of standard deviation ``width`` (d) centred at
+            ``(x, [y,] z)`` (3D: ``y`` defaults to the middle); ``kind="layers"``: P
+            uniform on the bands ``[k*spacing, k*spacing + spacing/2)`` in ``z`` (cell
+            centres), zero between.
+
+    Returns:
+        ``P0`` in d**-dims, array order ``(z, x)`` / ``(z, y, x)``.
+
+    Raises:
+        ValueError: the start puts no probability on the grid.
+    """
+    mesh = grid.mesh()
+    Z, X = mesh[0], mesh[-1]
+    if start.kind == "layers":
+        height = Z - grid.z_range[0]
+        phase = np.mod(height, start.spacing)
+        P = np.broadcast_to((phase < 0.5 * start.spacing).astype(float), grid.shape).copy()
+    elif start.kind == "blob":
+        r2 = (X - start.x) ** 2 + (Z - start.z) ** 2
+        if grid.dims == 3:
+            y0 = start.y if start.y is not None else grid.y_centre
+            r2 = r2 + (mesh[1] - y0) ** 2
+        P = np.broadcast_to(np.exp(-0.5 * r2 / start.width**2), grid.shape).copy()
+    else:
+        raise ValueError(f"tracer start kind must be 'blob' or 'layers', got {start.kind!r}")
+    total = P.sum() * grid.cell_volume
+    if not total > 0:
+        raise ValueError("tracer start puts no probability on the grid")
+    return P / total
+
+
+def _stage(progress: Progress | None, name: str):
+    """A solver's ``progress(fraction)`` for one stage, or None without a callback."""
+    if progress is None:
+        return None
+    return lambda fraction: progress(name, float(fraction))
+
+
+def _noop(fraction: float) -> None:
+    return None
+
+
+def _final_frame(rho_s: np.ndarray, grid) -> np.ndarray:
+    """The spot density at the end (a transient solver may return all its frames)."""
+    if rho_s.shape == grid.shape:
+        return rho_s
+    if rho_s.ndim == len(grid.shape) + 1 and rho_s.shape[1:] == grid.shape:
+        return rho_s[-1]
+    raise NumericalError(f"spot density has shape {rho_s.shape}, expected {grid.shape}")
+
+
+def _clip_roundoff(rho_s: np.ndarray, rel: float = 1e-9) -> np.ndarray:
+    """Set round-off negatives of a density (``|rho| <= rel * max|rho|``) to zero.
+
+    A density is non-negative; solvers leave values like ``-1e-15`` where it vanishes,
+    which downstream positivity checks would reject. Larger negatives are left alone.
+    """
+    scale = float(np.max(np.abs(rho_s))) if rho_s.size else 0.0
+    tiny = (rho_s < 0) & (rho_s >= -rel * scale)
+    if np.any(tiny):
+        rho_s = np.where(tiny, 0.0, rho_s)
+    return rho_s
+
+
+def _check_finite(name: str, arr: np.ndarray) -> None:
+    if not np.all(np.isfinite(arr)):
+        bad = int(np.size(arr) - np.count_nonzero(np.isfinite(arr)))
+        raise NumericalError(f"{name}: {bad} values are NaN or infinite; the run is not "
+                             f"trustworthy (try a smaller domain.spacing)")

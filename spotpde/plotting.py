@@ -1,0 +1,279 @@
+"""Standard figures of a result Dataset (matplotlib, headless Agg backend).
+
+:func:`plot_result` writes one multi-panel PNG: spot density; downward particle speed
+next to the kinematic model on the same colour scale; speed profiles at a few heights;
+streamlines of the particle drift; the tracer (the layered silo for a layered start,
+snapshots of the blob otherwise) and its mass budget. Each panel has its own function
+taking a Dataset and an Axes, for notebooks. 3D results are shown in the ``y`` mid-plane.
+Axes are in particle diameters d, times in the case's time unit t.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg", force=False)
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import xarray as xr  # noqa: E402
+
+SPEED_CMAP = "viridis"
+LAYER_CMAP = "YlOrBr"
+
+
+def midplane(ds: xr.Dataset) -> xr.Dataset:
+    """The ``y`` mid-plane of a 3D result (a 2D result unchanged).
+
+    Args:
+        ds: result Dataset.
+
+    Returns:
+        Dataset with dims ``(z, x)`` (and ``t``).
+    """
+    if "y" in ds.dims:
+        return ds.isel(y=ds.sizes["y"] // 2)
+    return ds
+
+
+def _extent(ds):
+    h = float(ds.x[1] - ds.x[0]) if ds.sizes["x"] > 1 else 1.0
+    hz = float(ds.z[1] - ds.z[0]) if ds.sizes["z"] > 1 else 1.0
+    return [float(ds.x[0]) - h / 2, float(ds.x[-1]) + h / 2,
+            float(ds.z[0]) - hz / 2, float(ds.z[-1]) + hz / 2]
+
+
+def _robust_max(*arrays, q=99.0):
+    vals = np.concatenate([np.ravel(np.asarray(a)) for a in arrays])
+    vals = vals[np.isfinite(vals)]
+    if vals.size == 0:
+        return 1.0
+    top = float(np.percentile(vals, q))
+    return top if top > 0 else float(max(vals.max(), 1e-300))
+
+
+def _image(ax, ds, values, *, vmin, vmax, cmap, label, title, extend="max"):
+    im = ax.imshow(np.asarray(values), origin="lower", extent=_extent(ds), vmin=vmin,
+                   vmax=vmax, cmap=cmap, aspect="equal", interpolation="nearest")
+    ax.set_xlabel("x (d)")
+    ax.set_ylabel("z (d)")
+    ax.set_title(title, fontsize=10)
+    cb = ax.figure.colorbar(im, ax=ax, shrink=0.85, extend=extend)
+    cb.set_label(label)
+    return im
+
+
+def _density_unit(ds):
+    return "spots/d³" if "y" in ds.dims or ds.attrs.get("dims") == 3 else "spots/d²"
+
+
+def plot_spot_density(ds: xr.Dataset, ax) -> None:
+    """Mean spot density ``rho_s`` (colour scale clipped at its 99th percentile)."""
+    unit = _density_unit(ds)
+    m = midplane(ds)
+    what = "void" if ds.attrs.get("model") == "void" else "spot"
+    _image(ax, m, m.rho_s, vmin=0.0, vmax=_robust_max(m.rho_s), cmap="magma",
+           label=f"ρ_s ({unit.replace('spots', what + 's')})", title=f"{what} density ρ_s")
+
+
+def plot_speed(ds: xr.Dataset, ax_particles, ax_kinematic) -> None:
+    """Downward particle speed ``-u_z`` next to the kinematic model ``v_kin``, one scale."""
+    m = midplane(ds)
+    vmax = _robust_max(-m.u_z, m.v_kin)
+    model = ds.attrs.get("model", "spot")
+    _image(ax_particles, m, -m.u_z, vmin=0.0, vmax=vmax, cmap=SPEED_CMAP,
+           label="speed (d/t)", title=f"particle speed −u_z ({model} model)")
+    _image(ax_kinematic, m, m.v_kin, vmin=0.0, vmax=vmax, cmap=SPEED_CMAP,
+           label="speed (d/t)", title="kinematic model v_kin")
+
+
+def plot_profiles(ds: xr.Dataset, ax, fractions=(0.1, 0.3, 0.6)) -> None:
+    """Horizontal profiles of ``-u_z`` (solid) and ``v_kin`` (dashed) at a few heights."""
+    m = midplane(ds)
+    ztop = float(m.z[-1])
+    colors = plt.get_cmap("plasma")(np.linspace(0.1, 0.8, len(fractions)))
+    for f, c in zip(fractions, colors):
+        row = m.sel(z=f * ztop, method="nearest")
+        ax.plot(row.x, -row.u_z, color=c, lw=1.8, label=f"z = {float(row.z):.3g} d")
+        ax.plot(row.x, row.v_kin, color=c, lw=1.2, ls="--")
+    ax.plot([], [], "k-", lw=1.8, label=f"−u_z ({ds.attrs.get('model', 'spot')} model)")
+    ax.plot([], [], "k--", lw=1.2, label="v_kin (kinematic)")
+    ax.set_xlabel("x (d)")
+    ax.set_ylabel("downward speed (d/t)")
+    ax.set_title("speed profiles at three heights", fontsize=10)
+    ax.legend(fontsize=8, frameon=False)
+    ax.grid(alpha=0.3)
+
+
+def plot_streamlines(ds: xr.Dataset, ax) -> None:
+    """Streamlines of the particle drift, coloured by its magnitude."""
+    m = midplane(ds)
+    x, z = np.asarray(m.x), np.asarray(m.z)
+    ux, uz = np.asarray(m.u_x), np.asarray(m.u_z)
+    speed = np.hypot(ux, uz)
+    vmax = _robust_max(speed)
+    if x.size > 1 and z.size > 1 and np.any(speed > 0):
+        sp = ax.streamplot(x, z, ux, uz, color=np.minimum(speed, vmax), cmap=SPEED_CMAP,
+                           density=1.1, linewidth=0.8, arrowsize=0.7,
+                           norm=matplotlib.colors.Normalize(0.0, vmax))
+        sp.lines.set_in_layout(False)          # keeps constrained layout fast
+        sp.arrows.set_in_layout(False)
+        for patch in ax.patches:
+            patch.set_in_layout(False)
+        cb = ax.figure.colorbar(sp.lines, ax=ax, shrink=0.85, extend="max")
+        cb.set_label("|u_p| (d/t)")
+    ax.set_xlim(_extent(m)[:2])
+    ax.set_ylim(_extent(m)[2:])
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (d)")
+    ax.set_ylabel("z (d)")
+    ax.set_title("streamlines of the particle drift u_p", fontsize=10)
+
+
+def plot_diffusivity(ds: xr.Dataset, ax) -> None:
+    """Horizontal particle diffusivity ``D_xx``."""
+    m = midplane(ds)
+    _image(ax, m, m.D_xx, vmin=0.0, vmax=_robust_max(m.D_xx), cmap="cividis",
+           label="D_xx (d²/t)", title="particle diffusivity D_xx")
+
+
+def is_layered(ds: xr.Dataset) -> bool:
+    """True when the tracer started as horizontal layers (read from the ``case`` text)."""
+    return "layers" in ds.attrs.get("case", "")
+
+
+def plot_layers(ds: xr.Dataset, ax, frame: int) -> None:
+    """The layered silo at one frame: P relative to the initial band density."""
+    m = midplane(ds)
+    p0 = float(m.P.isel(t=0).max())
+    P = m.P.isel(t=frame) / (p0 if p0 > 0 else 1.0)
+    t = float(m.t[frame])
+    _image(ax, m, P, vmin=0.0, vmax=1.0, cmap=LAYER_CMAP, label="P / P(t=0) in a band",
+           title=f"coloured layers at t = {t:.3g}", extend="neither")
+
+
+def plot_snapshots(ds: xr.Dataset, ax, count: int = 5) -> None:
+    """Tracer snapshots: P at a few frames, each scaled to its own maximum, on one map."""
+    m = midplane(ds)
+    nt = m.sizes["t"]
+    frames = sorted(set(np.linspace(0, nt - 1, min(count, nt)).round().astype(int)))
+    composite = np.zeros((m.sizes["z"], m.sizes["x"]))
+    for i in frames:
+        P = np.asarray(m.P.isel(t=i))
+        top = P.max()
+        if top > 0:
+            composite = np.maximum(composite, P / top)
+            k, j = np.unravel_index(np.argmax(P), P.shape)
+            ax.annotate(f"t={float(m.t[i]):.3g}", (float(m.x[j]), float(m.z[k])),
+                        xytext=(6, 6), textcoords="offset points", fontsize=7, color="w")
+    _image(ax, m, composite, vmin=0.0, vmax=1.0, cmap="inferno",
+           label="P / max P (each frame)", title=f"tracer snapshots ({len(frames)} frames)",
+           extend="neither")
+
+
+def plot_mass(ds: xr.Dataset, ax) -> None:
+    """Tracer mass budget: inside, out through the orifice, and their sum."""
+    t = np.asarray(ds.t)
+    ax.plot(t, ds.mass, label="inside")
+    ax.plot(t, ds.outflow, label="out through orifice")
+    ax.plot(t, ds.mass + ds.outflow, "k--", lw=1, label="sum")
+    err = float(np.max(np.abs(np.asarray(ds.mass + ds.outflow) - 1.0))) if t.size else 0.0
+    ax.set_xlabel("time t (case time unit)")
+    ax.set_ylabel("probability")
+    ax.set_ylim(-0.05, 1.1)
+    ax.set_title(f"tracer mass budget (max |sum − 1| = {err:.1e})", fontsize=10)
+    ax.legend(fontsize=8, frameon=False)
+    ax.grid(alpha=0.3)
+
+
+def plot_result(ds: xr.Dataset, path: str | os.PathLike, *, dpi: int = 100) -> Path:
+    """Write the standard multi-panel figure of a result as PNG.
+
+    Args:
+        ds: a result Dataset (from :func:`spotpde.run` or a netCDF file).
+        path: the PNG file to write (written atomically).
+        dpi: resolution.
+
+    Returns:
+        The path written.
+    """
+    m = midplane(ds)
+    width = float(m.x[-1] - m.x[0]) if m.sizes["x"] > 1 else 1.0
+    height = float(m.z[-1] - m.z[0]) if m.sizes["z"] > 1 else 1.0
+    panel_h = 4.4
+    panel_w = float(np.clip(panel_h * width / height + 1.2, 3.2, 7.0))
+    fig, axes = plt.subplots(2, 4, figsize=(3 * panel_w + 5.0, 2 * panel_h + 0.9),
+                             gridspec_kw={"width_ratios": [panel_w] * 3 + [5.0]},
+                             constrained_layout=True)
+    plot_spot_density(ds, axes[0, 0])
+    plot_speed(ds, axes[0, 1], axes[0, 2])
+    plot_profiles(ds, axes[0, 3])
+    plot_streamlines(ds, axes[1, 0])
+    if "P" in ds:
+        if is_layered(ds):
+            nt = ds.sizes["t"]
+            plot_layers(ds, axes[1, 1], nt // 2)
+            plot_layers(ds, axes[1, 2], nt - 1)
+        else:
+            plot_snapshots(ds, axes[1, 1])
+            plot_height_propagator(ds, axes[1, 2])
+        plot_mass(ds, axes[1, 3])
+    else:
+        plot_diffusivity(ds, axes[1, 1])
+        plot_speed_difference(ds, axes[1, 2])
+        plot_flux(ds, axes[1, 3])
+    model = ds.attrs.get("model", "spot")
+    n = "³" if "y" in ds.dims else "²"
+    fig.suptitle(f"spotpde {ds.attrs.get('spotpde_version', '')}: {model} model, "
+                 f"V1 = {ds.attrs.get('V1', float('nan')):.3g} d{n}, "
+                 f"V2 = {ds.attrs.get('V2', float('nan')):.3g} d{n}, "
+                 f"rule λ = {ds.attrs.get('rule', float('nan')):g}"
+                 + (" (y mid-plane)" if "y" in ds.dims else ""), fontsize=12)
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp.png")
+    try:
+        fig.savefig(tmp, dpi=dpi)
+        os.replace(tmp, path)
+    finally:
+        plt.close(fig)
+        if tmp.exists():
+            tmp.unlink()
+    return path
+
+
+def plot_height_propagator(ds: xr.Dataset, ax) -> None:
+    """Geometrical propagator ``P_height``: where the tracer crosses each height."""
+    m = midplane(ds)
+    unit = "1/d²" if "y" in ds.dims else "1/d"
+    _image(ax, m, m.P_height, vmin=0.0, vmax=_robust_max(m.P_height), cmap="inferno",
+           label=f"P_height ({unit})", title="geometrical propagator P_height")
+
+
+def plot_speed_difference(ds: xr.Dataset, ax) -> None:
+    """``(-u_z - v_kin)`` relative to the largest kinematic speed at the same height."""
+    m = midplane(ds)
+    scale = m.v_kin.max("x")
+    rel = (-m.u_z - m.v_kin) / scale.where(scale > 0)
+    lim = max(_robust_max(np.abs(rel)), 1e-6)
+    _image(ax, m, rel, vmin=-lim, vmax=lim, cmap="RdBu_r",
+           label="(−u_z − v_kin) / max_x v_kin", title="spot model minus kinematic model",
+           extend="both")
+
+
+def plot_flux(ds: xr.Dataset, ax) -> None:
+    """Downward particle flux through each height: drift vs kinematic model (``V1 Q0``)."""
+    h = float(ds.x[1] - ds.x[0]) if ds.sizes["x"] > 1 else 1.0
+    area = h ** (2 if "y" in ds.dims else 1)
+    horizontal = [d for d in ("y", "x") if d in ds.dims]
+    ax.plot((-ds.u_z).sum(horizontal) * area, ds.z, label="−u_z (drift)")
+    ax.plot(ds.v_kin.sum(horizontal) * area, ds.z, "--", label="v_kin")
+    unit = "d³/t" if "y" in ds.dims else "d²/t"
+    ax.set_xlabel(f"downward particle flux through height z ({unit})")
+    ax.set_ylabel("z (d)")
+    ax.set_xlim(left=0)
+    ax.set_title("flux through each height", fontsize=10)
+    ax.legend(fontsize=8, frameon=False)
+    ax.grid(alpha=0.3)

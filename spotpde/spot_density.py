@@ -1,0 +1,246 @@
+"""Mean spot density ``rho_s``: steady and transient (PHYSICS.md section 1).
+
+    d rho_s/dt + d/dz (v_s rho_s) = lap_perp (D_perp rho_s) + d2/dz2 (D_par rho_s) + S
+
+Spots enter through the orifice on the floor at ``Q0(t) s(x)`` (:mod:`spotpde.orifice`),
+leave through the top, and do not cross reflecting side walls. Which solver runs:
+
+=====================  ===============================  ==================================
+case                   method                           error
+=====================  ===============================  ==================================
+steady, v_s, b, b_par  cosine modes, exact in height    round-off (modes beyond the grid's
+uniform (D_par = 0:    (each mode's ODE in z solved     folded in); flux ``Q0`` to
+only b uniform)        in closed form, ``_spectral``)   round-off at every height
+steady, D_par = 0,     Crank-Nicolson / ADI marching    ``O(h**2)``, flux to round-off
+b varying              in height (:mod:`._marching`)
+steady, D_par > 0,     finite volumes + sparse LU       ``O(h**2)``, outflow ``Q0`` to
+coefficients varying   (:mod:`spotpde._elliptic`)       round-off
+transient              same finite volumes, BDF2        ``O(h**2 + dt**2)``
+                       (:mod:`spotpde._transient`)
+transient,             py-pde adaptive Runge-Kutta on   cross-check; explicit, so small
+``method="py-pde"``    the same operator (``_pde``)     grids only
+=====================  ===============================  ==================================
+
+Open walls (a window on a wider silo) are solved on a window padded by
+``p = 6 sqrt(b_max H)`` on each side (``H`` the height; coefficients extended by
+their edge values) with reflecting far walls, then cropped: the far walls' images
+change the window by ``exp(-p**2 / (b H)) = exp(-36)`` relative.
+
+Units: ``rho_s`` in spots per d**dims; ``v_s`` in d per unit time; ``Q0`` spots per
+unit time. Derivations and checks: docs/spot_density.md.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Callable
+
+import numpy as np
+
+from . import _elliptic, _marching, _spectral, _transient
+from .errors import CaseError
+from .grid import Grid
+from .orifice import source_profile, validate as validate_orifice
+from .parameters import SPOT_MODES, Orifice, Spots
+
+__all__ = ["steady", "transient", "solve", "validate", "pad_cells"]
+
+Progress = Callable[[float], None] | None
+
+
+# -- validation -------------------------------------------------------------------------
+def validate(grid: Grid, spots: Spots) -> None:
+    """Raise :class:`CaseError` naming every invalid ``spots`` key.
+
+    Args:
+        grid: the grid (array coefficients must have its shape).
+        spots: drift, b, b_par (floats or grid-shaped arrays), mode, t_end.
+    """
+    problems = []
+    for key, value, strict in (("drift", spots.drift, True), ("b", spots.b, True),
+                               ("b_par", spots.b_par, False)):
+        arr = np.asarray(value, dtype=float)
+        if arr.ndim > 0 and arr.shape != grid.shape:
+            problems.append(f"spots.{key}: an array must have the grid shape {grid.shape}, got {arr.shape}")
+            continue
+        if not np.all(np.isfinite(arr)):
+            problems.append(f"spots.{key}: must be finite")
+        elif strict and np.any(arr <= 0):
+            problems.append(f"spots.{key}: must be > 0, got {arr.min()!r}")
+        elif not strict and np.any(arr < 0):
+            problems.append(f"spots.{key}: must be >= 0, got {arr.min()!r}")
+    if spots.mode not in SPOT_MODES:
+        problems.append(f"spots.mode: must be one of {', '.join(map(repr, SPOT_MODES))}, got {spots.mode!r}")
+    if problems:
+        raise CaseError(problems)
+
+
+# -- open walls: padding -------------------------------------------------------------------
+def pad_cells(grid: Grid, b) -> int:
+    """Cells added on each side for open walls: ``ceil(6 sqrt(b_max H) / h)`` (0 if reflecting)."""
+    if grid.walls == "reflecting":
+        return 0
+    H = grid.z_range[1] - grid.z_range[0]
+    return int(np.ceil(6.0 * np.sqrt(float(np.max(b)) * H) / grid.spacing))
+
+
+def _pad(grid: Grid, spots: Spots):
+    """Padded reflecting grid, padded coefficient arrays (or floats), crop function."""
+    p = pad_cells(grid, spots.b)
+    coeffs = [spots.drift, spots.b, spots.b_par]
+    if p == 0:
+        g = dataclasses.replace(grid, walls="reflecting")
+        return g, coeffs, lambda a: a
+    h = grid.spacing
+    x0, x1 = grid.x_range
+    g = Grid(grid.dims, (x0 - p * h, x1 + p * h), grid.z_range, h, "reflecting")
+    widths = [(0, 0)] + [(p, p)] * (grid.dims - 1)
+    coeffs = [np.pad(c, widths, mode="edge") if np.ndim(c) > 0 else c for c in coeffs]
+    n = grid.nx
+
+    def crop(a):
+        if grid.dims == 2:
+            return np.ascontiguousarray(a[..., p:p + n])
+        return np.ascontiguousarray(a[..., p:p + n, p:p + n])
+
+    return g, coeffs, crop
+
+
+def _is_zero(c) -> bool:
+    return bool(np.all(np.asarray(c) == 0))
+
+
+def _is_uniform(c) -> bool:
+    return np.ndim(c) == 0 or bool(np.ptp(c) == 0)
+
+
+def _constant_rate(orifice: Orifice) -> float:
+    if callable(orifice.rate):
+        raise CaseError("orifice.rate: a steady solve needs a constant rate Q0, got a function of time")
+    return float(orifice.rate)
+
+
+# -- steady --------------------------------------------------------------------------------
+def steady(grid: Grid, orifice: Orifice, spots: Spots, progress: Progress = None) -> np.ndarray:
+    """Steady mean spot density.
+
+    ``D_par = 0``: ``d(v_s rho_s)/dz = lap_perp(b v_s rho_s)`` marched in height from
+    ``v_s rho_s = Q0 s(x)`` on the floor (exact cosine modes for uniform ``b``).
+    ``D_par > 0``: the elliptic problem ``div J = 0`` with inflow ``Q0 s`` through the
+    orifice, no flux through walls and the rest of the floor, advective outflow at
+    the top (``_elliptic``). Between reflecting walls
+    ``v_s * sum(rho_s) * h**(dims-1) = Q0`` at every height for ``D_par = 0`` (and at
+    the top for ``D_par > 0``) to round-off.
+
+    Args:
+        grid: the grid (walls reflecting or open).
+        orifice: the source; its rate must be a constant Q0 (spots per unit time).
+        spots: ``v_s`` (d / time), ``b`` and ``b_par`` (d): floats or grid-shaped arrays.
+        progress: called with the fraction done.
+
+    Returns:
+        ``rho_s``, grid shape, spots per d**dims: at each cell-centre height, the
+        average over each cell's horizontal extent (exact for uniform ``b``; finite-volume
+        cell values otherwise).
+    """
+    validate(grid, spots)
+    validate_orifice(grid, orifice)
+    Q0 = _constant_rate(orifice)
+    g, (v, b, b_par), crop = _pad(grid, spots)
+    if _is_uniform(b) and _is_uniform(b_par) and (_is_zero(b_par) or _is_uniform(v)):
+        phi = _spectral.steady_flux(g, orifice, float(np.ravel(b)[0]), Q0, float(np.ravel(b_par)[0]))
+        rho = phi / v
+    elif _is_zero(b_par):
+        bb = np.broadcast_to(np.asarray(b, dtype=float), g.shape)
+        phi = _marching.march(Q0 * source_profile(g, orifice), bb, g.spacing, progress)
+        rho = phi / v
+    else:
+        q = _elliptic.floor_source(g.shape, g.spacing, Q0 * source_profile(g, orifice))
+        rho = _elliptic.solve_steady(g.shape, g.spacing, v, b * v, b_par * v, q)
+    if progress is not None:
+        progress(1.0)
+    return crop(rho)
+
+
+# -- transient -------------------------------------------------------------------------------
+TRANSIENT_METHODS = ("bdf2", "py-pde")
+
+
+def transient(grid: Grid, orifice: Orifice, spots: Spots, t_end: float, times=None,
+              progress: Progress = None, dt: float | None = None, rho0: np.ndarray | None = None,
+              full_output: bool = False, method: str = "bdf2"):
+    """Time-dependent mean spot density from an empty silo (or ``rho0``) at ``t = 0``.
+
+    Solves the spot Fokker-Planck equation with anisotropic, spatially varying
+    coefficients and the time-varying floor inflow ``Q0(t) s(x)`` by BDF2 on the
+    conservative finite volumes of ``_elliptic`` (``_transient``). With a constant
+    ``Q0`` it tends to :func:`steady` (exactly the same discrete operator when
+    ``D_par > 0``; within ``O(h**2)`` of the marching solution when ``D_par = 0``).
+
+    Args:
+        grid: the grid.
+        orifice: the source; ``rate`` a constant or a callable ``Q0(t)``.
+        spots: coefficients as for :func:`steady`.
+        t_end: final time (> 0), case time unit.
+        times: optional frame times in ``[0, t_end]``.
+        progress: called with the fraction done.
+        dt: time step (default ``h / max(v_s)``, at least 20 steps).
+        rho0: initial density (grid shape), default 0.
+        full_output: return the diagnostics dict instead of the density.
+        method: ``"bdf2"`` (default: implicit, factorised, :mod:`._transient`) or
+            ``"py-pde"`` (py-pde's adaptive explicit Runge-Kutta on the same operator,
+            :mod:`._pde`; small grids only, a cross-check; ``dt`` is ignored).
+
+    Returns:
+        ``times is None``: ``rho_s`` at ``t_end`` (grid shape). Otherwise an array
+        ``(len(times),) + grid.shape`` of frames. With ``full_output``: a dict with
+        ``times``, ``frames``, ``outflow`` and ``inflow`` (spots per unit time through
+        the top and the orifice at each frame), ``dt`` and ``steps``.
+    """
+    validate(grid, spots)
+    validate_orifice(grid, orifice)
+    if not (np.isfinite(t_end) and t_end > 0):
+        raise CaseError(f"spots.t_end: must be > 0 for a transient run, got {t_end!r}")
+    frame_times = np.array([t_end], float) if times is None else np.sort(np.asarray(times, float))
+    if frame_times.size and (frame_times[0] < 0 or frame_times[-1] > t_end * (1 + 1e-12)):
+        raise CaseError(f"spots.t_end: frame times must lie in [0, {t_end}]")
+    g, (v, b, b_par), crop = _pad(grid, spots)
+    base = _elliptic.floor_source(g.shape, g.spacing, source_profile(g, orifice))
+    if rho0 is not None and g.shape != grid.shape:
+        p = pad_cells(grid, spots.b)
+        widths = [(0, 0)] + [(p, p)] * (grid.dims - 1)
+        rho0 = np.pad(np.asarray(rho0, float), widths, mode="constant")
+
+    def q(t):
+        return orifice.rate_at(t) * base
+
+    if method == "bdf2":
+        res = _transient.integrate(g.shape, g.spacing, v, b * v, b_par * v, q, t_end, frame_times,
+                                   dt=dt, rho0=rho0, progress=progress)
+    elif method == "py-pde":
+        from . import _pde
+        fr = _pde.integrate(g, v, b * v, b_par * v, base, orifice.rate, t_end, frame_times,
+                            rho0=rho0, progress=progress)
+        _, out_row = _elliptic.assemble(g.shape, g.spacing, v, b * v, b_par * v)
+        res = {"frames": fr, "outflow": np.array([(out_row @ f.ravel())[0] for f in fr]),
+               "inflow": np.array([orifice.rate_at(t) for t in frame_times]),
+               "dt": None, "steps": None}
+    else:
+        raise CaseError(f"spots.method: must be one of {', '.join(map(repr, TRANSIENT_METHODS))}, "
+                        f"got {method!r}")
+    frames = crop(res["frames"])
+    if full_output:
+        return {**res, "frames": frames, "times": frame_times}
+    return frames[-1] if times is None else frames
+
+
+def solve(grid: Grid, orifice: Orifice, spots: Spots, progress: Progress = None) -> np.ndarray:
+    """Dispatch on ``spots.mode``: :func:`steady`, or :func:`transient` to ``spots.t_end``.
+
+    Returns:
+        ``rho_s`` (grid shape, spots per d**dims): steady, or at ``t = spots.t_end``.
+    """
+    validate(grid, spots)
+    if spots.mode == "steady":
+        return steady(grid, orifice, spots, progress)
+    return transient(grid, orifice, spots, spots.t_end, progress=progress)

@@ -1,0 +1,334 @@
+"""Parameter sweeps on Dask: the product of case-key values, run in parallel, one Dataset.
+
+A sweep takes a validated base case and, for each swept key, a list of values
+(``--set kernel.size=1,2,3 --set spots.b=1.3,2.3``). Every combination is a *member*:
+a full case, validated before anything runs. Members run as Dask tasks, on an embedded
+``dask.distributed.LocalCluster`` (one single-threaded worker process per core, nothing
+to start) or on a user's scheduler (``scheduler="tcp://host:8786"``; its workers need
+spotpde installed). Each finished member is written, atomically, to
+``<output>.members/member-<hash>.nc`` (the hash is that of the member's case text), so
+a sweep that is interrupted or partly failed is *resumed* by running it again: members
+whose file exists are read, not rerun.
+
+The members are combined into one Dataset whose leading dimensions are the swept keys
+(named by their dotted key, e.g. ``kernel.size``), in the order given. Per-member
+numbers that are global attributes of a single run (``V1``, ``V2``, ``rule``) become
+variables over the swept dimensions. A member that failed is not dropped: its fields
+are NaN, ``status`` is 1 there, and the global attribute ``failed_members`` lists it by
+its parameters with the error message.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import itertools
+import os
+import tomllib
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import xarray as xr
+
+from ._version import __version__
+from .cases import Case, load_case
+from .errors import CaseError
+
+#: Keys that change the grid cannot be swept into one Dataset.
+FIXED_KEYS = ("domain.dims", "domain.x", "domain.z", "domain.spacing", "output.path")
+#: Global attributes of a single run that become variables over the swept dimensions.
+MEMBER_NUMBERS = {"V1": ("d{dims}", "first interaction volume: integral of w"),
+                  "V2": ("d{dims}", "second interaction volume: integral of w**2"),
+                  "rule": ("1", "lam: where along a spot step its influence is evaluated")}
+
+
+def parse_settings(items: Sequence[str]) -> dict[str, list]:
+    """Parse ``--set KEY=V1,V2,...`` items.
+
+    Each value is read as a TOML value (``1``, ``2.5``, ``true``, ``"gaussian"``); a bare
+    word that is not TOML is taken as a string, so ``kernel.shape=uniform,gaussian`` works.
+
+    Args:
+        items: strings ``"table.key=v1,v2,..."``.
+
+    Returns:
+        Values by dotted key, in the order given.
+
+    Raises:
+        spotpde.CaseError: a malformed item, a repeated or unsweepable key.
+    """
+    settings: dict[str, list] = {}
+    problems = []
+    for item in items:
+        key, sep, values = item.partition("=")
+        key = key.strip()
+        if not sep or not key or not values.strip():
+            problems.append(f"--set {item}: expected KEY=V1,V2,... (e.g. spots.b=1.3,2.3)")
+            continue
+        if key.count(".") < 1:
+            problems.append(f"--set {key}: expected a dotted key table.key (e.g. kernel.size)")
+            continue
+        if key in FIXED_KEYS:
+            problems.append(f"--set {key}: cannot be swept (it changes the grid or the output); "
+                            f"sweepable: any key of orifice, spots, kernel, tracer, and "
+                            f"domain.walls")
+            continue
+        if key in settings:
+            problems.append(f"--set {key}: given twice; list all its values once")
+            continue
+        settings[key] = [_parse_value(v.strip()) for v in values.split(",")]
+    if problems:
+        raise CaseError(problems)
+    return settings
+
+
+def _parse_value(text: str) -> Any:
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def members(case: Case, settings: Mapping[str, Sequence]) -> list[tuple[tuple, Case]]:
+    """Every combination of the swept values as a validated case.
+
+    Args:
+        case: the base case.
+        settings: values by dotted key.
+
+    Returns:
+        ``[(values, member_case), ...]`` in row-major order of the swept keys.
+
+    Raises:
+        spotpde.CaseError: every problem of every invalid member, each line naming the
+            key and the member it belongs to.
+    """
+    if not settings:
+        raise CaseError("--set: give at least one KEY=V1,V2,... to sweep")
+    out, problems = [], []
+    for values in itertools.product(*settings.values()):
+        data = copy.deepcopy(case.data)
+        label = _label(settings, values)
+        try:
+            for key, value in zip(settings, values):
+                _assign(data, key, value)
+            out.append((values, load_case(data)))
+        except CaseError as err:
+            problems.extend(f"{line} (sweep member {label})" for line in err.problems)
+    if problems:
+        raise CaseError(list(dict.fromkeys(problems)))
+    return out
+
+
+def _assign(data: dict, key: str, value: Any) -> None:
+    *tables, last = key.split(".")
+    node = data
+    for i, t in enumerate(tables):
+        if not isinstance(node.get(t), dict):
+            where = ".".join(tables[: i + 1])
+            raise CaseError(f"{key}: the base case has no [{where}] table to sweep in")
+        node = node[t]
+    node[last] = value
+
+
+def _label(settings: Mapping, values: Sequence) -> str:
+    return ", ".join(f"{k}={v}" for k, v in zip(settings, values))
+
+
+def member_path(directory: Path, member: Case) -> Path:
+    """Where a member's result is kept: named by the hash of its case text."""
+    digest = hashlib.sha1(member.to_toml().encode()).hexdigest()[:16]
+    return directory / f"member-{digest}.nc"
+
+
+def run_member(case_text: str, path: str) -> tuple[str, str]:
+    """Run one member and write its result file (the Dask task).
+
+    Args:
+        case_text: the member's case as TOML.
+        path: the member's result file.
+
+    Returns:
+        ``("ok", path)`` or ``("failed", "ErrorType: message")``. Failures are returned,
+        not raised, so one bad member does not stop the sweep.
+    """
+    from .io import write_netcdf
+    from .pipeline import run
+
+    try:
+        ds = run(load_case(tomllib.loads(case_text)))
+        write_netcdf(ds, path)
+    except Exception as exc:  # reported by parameters in the combined result
+        return "failed", f"{type(exc).__name__}: {exc}".strip()
+    return "ok", path
+
+
+def sweep_case(
+    case: Case | str | Mapping,
+    settings: Mapping[str, Sequence] | Sequence[str],
+    output: str | os.PathLike | None = None,
+    *,
+    scheduler: str | Any | None = None,
+    n_workers: int | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> xr.Dataset:
+    """Run a parameter sweep and combine the members into one Dataset.
+
+    Args:
+        case: base case (a :class:`Case`, a path, or a mapping).
+        settings: values by dotted key, or ``--set`` strings for :func:`parse_settings`.
+        output: the combined netCDF file to write (atomically); its member files go to
+            ``<output>.members/``. ``None``: the base case's ``output.path``.
+        scheduler: address of a running Dask scheduler, or a ``distributed.Client``;
+            ``None`` starts an embedded ``LocalCluster``.
+        n_workers: LocalCluster worker processes (default: the number of cores, at most
+            the number of members still to run).
+        progress: ``progress(done, total)`` called as members finish.
+
+    Returns:
+        The combined Dataset (also written to ``output``).
+
+    Raises:
+        spotpde.CaseError: invalid settings or an invalid member (before any work).
+    """
+    from .io import read_netcdf, write_netcdf
+
+    if not isinstance(case, Case):
+        case = load_case(case)
+    if not isinstance(settings, Mapping):
+        settings = parse_settings(settings)
+    todo_members = members(case, settings)
+    output = Path(os.path.abspath(output if output is not None else case.output_path))
+    if not output.parent.is_dir():
+        raise CaseError(f"output.path: the directory {output.parent} does not exist")
+    directory = output.with_name(output.name + ".members")
+    directory.mkdir(exist_ok=True)
+
+    paths = [member_path(directory, m) for _, m in todo_members]
+    status: dict[int, tuple[str, str]] = {
+        i: ("ok", os.fspath(p)) for i, p in enumerate(paths) if p.is_file()}
+    todo = [i for i in range(len(paths)) if i not in status]
+    done = len(status)
+    if progress is not None:
+        progress(done, len(paths))
+    if todo:
+        for i, result in _run_on_dask(
+                [(todo_members[i][1].to_toml(), os.fspath(paths[i])) for i in todo],
+                scheduler, n_workers):
+            status[todo[i]] = result
+            done += 1
+            if progress is not None:
+                progress(done, len(paths))
+
+    results = []
+    for i, (values, _) in enumerate(todo_members):
+        kind, detail = status[i]
+        results.append((values, read_netcdf(detail) if kind == "ok" else detail))
+    ds = combine(case, settings, results)
+    write_netcdf(ds, output)
+    return ds
+
+
+def _run_on_dask(tasks: list[tuple[str, str]], scheduler, n_workers):
+    """Yield ``(task index, run_member result)`` as tasks finish."""
+    from distributed import Client, LocalCluster, as_completed
+
+    cluster = None
+    if scheduler is None:
+        workers = n_workers or min(os.cpu_count() or 1, len(tasks))
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                               dashboard_address=None)
+        client = Client(cluster)
+    elif isinstance(scheduler, str):
+        client = Client(scheduler)
+    else:
+        client = scheduler
+    try:
+        futures = [client.submit(run_member, text, path, pure=False) for text, path in tasks]
+        index = {f.key: i for i, f in enumerate(futures)}
+        for future in as_completed(futures):
+            try:
+                result = future.result()
+            except Exception as exc:  # a worker died: report, do not drop
+                result = ("failed", f"{type(exc).__name__}: {exc}")
+            yield index[future.key], result
+    finally:
+        if client is not scheduler:
+            client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def combine(case: Case, settings: Mapping[str, Sequence], results: list) -> xr.Dataset:
+    """Combine member results into one Dataset with the swept keys as dimensions.
+
+    Args:
+        case: the base case.
+        settings: values by dotted key (fixes the dimension order).
+        results: ``[(values, Dataset or failure message), ...]`` in member order.
+
+    Returns:
+        The combined Dataset; failed members are NaN with ``status`` 1.
+
+    Raises:
+        spotpde.NumericalError: every member failed (there is nothing to combine).
+    """
+    from .errors import NumericalError
+
+    good = [r for _, r in results if isinstance(r, xr.Dataset)]
+    failed = [(values, r) for values, r in results if not isinstance(r, xr.Dataset)]
+    if not good:
+        raise NumericalError("every sweep member failed: " + "; ".join(
+            f"{_label(settings, v)}: {msg}" for v, msg in failed))
+    template = good[0]
+    numbers = {name: [] for name in MEMBER_NUMBERS}
+    parts = []
+    for values, r in results:
+        ds = r if isinstance(r, xr.Dataset) else xr.full_like(template, np.nan)
+        for name in numbers:
+            numbers[name].append(float(ds.attrs[name]) if isinstance(r, xr.Dataset) else np.nan)
+        parts.append(ds)
+    shape = tuple(len(v) for v in settings.values())
+    stacked = xr.concat(parts, dim="member", join="outer", combine_attrs="drop")
+    index = [np.asarray(v) for v in settings.values()]
+    grid_shape = {d: stacked.sizes[d] for d in stacked.dims if d != "member"}
+    data_vars = {}
+    for name, var in stacked.data_vars.items():
+        arr = var.values.reshape(shape + var.shape[1:])
+        data_vars[name] = (tuple(settings) + var.dims[1:], arr, template[name].attrs)
+    dims = case.grid.dims
+    for name, vals in numbers.items():
+        units, long_name = MEMBER_NUMBERS[name]
+        data_vars[name] = (tuple(settings), np.reshape(vals, shape),
+                           {"units": units.format(dims=dims), "long_name": long_name})
+    status = np.reshape([0 if isinstance(r, xr.Dataset) else 1 for _, r in results], shape)
+    data_vars["status"] = (tuple(settings), status.astype(np.int8),
+                           {"units": "1", "long_name": "member status: 0 finished, 1 failed",
+                            "flag_values": np.array([0, 1], dtype=np.int8),
+                            "flag_meanings": "finished failed"})
+    coords = {k: (k, idx, {"units": _units_of(k, dims), "long_name": f"swept case key {k}"})
+              for k, idx in zip(settings, index)}
+    for d in grid_shape:
+        coords[d] = (d, stacked[d].values, template[d].attrs)
+    out = xr.Dataset(data_vars, coords=coords)
+    out.attrs.update({
+        "spotpde_version": __version__,
+        "case": case.to_toml(),
+        "sweep_keys": ", ".join(settings),
+        "failed_members": "\n".join(f"{_label(settings, v)}: {msg}" for v, msg in failed),
+        "title": f"spotpde sweep over {', '.join(settings)}",
+    })
+    return out
+
+
+def _units_of(key: str, dims: int) -> str:
+    """Units of a swept case key (docs/cases.md), ``"1"`` for choices and pure numbers."""
+    units = {"orifice.x": "d", "orifice.y": "d", "orifice.width": "d", "orifice.rate": "t-1",
+             "spots.drift": "d t-1", "spots.b": "d", "spots.b_par": "d", "spots.t_end": "t",
+             "kernel.size": "d", "kernel.volume": f"d{dims}", "tracer.t_end": "t"}
+    return units.get(key, "1")
+
+
+__all__ = ["parse_settings", "members", "sweep_case", "combine", "run_member"]
