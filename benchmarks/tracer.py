@@ -68,7 +68,9 @@ def main():
         grid = Grid(2, (-n / 8, n / 8), (0.0, n / 4), 0.25)
         f = tracer._check_fields(grid, fields_for(grid), "fields")
         Z, X = grid.mesh()
-        P = np.ascontiguousarray(np.exp(-((Z - n / 8) ** 2 + X**2) / 50.0) * np.ones(grid.shape))
+        # structure in every cell (so no early exits of the limiters in flat zero regions)
+        P = np.exp(-((Z - n / 8) ** 2 + X**2) / 50.0) + 0.1 * (1.2 + np.sin(0.7 * X) * np.sin(0.3 * Z))
+        P = np.ascontiguousarray(P)
         out = np.zeros_like(P)
         N = P.size
         for threads in args.threads:

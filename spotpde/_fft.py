@@ -40,7 +40,7 @@ _MAX_PLANS = 4
 #: transforms with fewer points run single-threaded (thread start-up costs more than it saves)
 THREAD_MIN_SIZE = 1 << 16
 #: upper bound on FFTW planning time per transform, seconds
-PLANNING_TIMELIMIT = 20.0
+PLANNING_TIMELIMIT = 2.0
 
 _lock = threading.Lock()
 _plans: OrderedDict = OrderedDict()

@@ -120,7 +120,10 @@ def steady_flux(grid: Grid, orifice: Orifice, b: float, Q0: float = 1.0,
     else:
         c = a[None, :, :] * mode_profile(k2[None, :n, :n], zeta[:, None, None], b, b_par, H)
     for k in range(alias_rows if blocks > 1 else 0):
-        full = a_full * mode_profile(k2, zeta[k], b, b_par, H)
+        R = ALIAS_EXPONENT / zeta[k]                    # fewer blocks needed higher up
+        m = n * int(min(blocks, np.ceil(np.sqrt((b_par * R**2 + R) / b) * h / np.pi) + 1))
+        sl = (slice(0, m),) * (grid.dims - 1)
+        full = a_full[sl] * mode_profile(k2[sl], zeta[k], b, b_par, H)
         c[k] = _fold_modes(full, n, grid.dims - 1)
     c *= half if grid.dims == 2 else half[:, None] * half[None, :]
     if grid.dims == 2:

@@ -43,10 +43,11 @@ DEFAULTS: dict[str, dict[str, Any]] = {
     "kernel": {"shape": "gaussian", "size": 1.0, "volume": 0.05, "height": None,
                "aspect": 1.0, "rule": 0.5},
     "tracer": {"model": "spot", "start": None, "layers": None, "t_end": 100.0, "frames": 20,
-               "limiter": "koren", "cfl": 0.9, "diffusion": "auto"},
+               "limiter": "weno5", "cfl": 0.9, "diffusion": "auto"},
     "output": {"path": "out.nc"},
 }
 RATE_TABLE_KEYS = {"times": None, "values": None}
+PROFILE_KEYS = {"x": None, "z": None, "values": None}
 START_KEYS = {"x": None, "y": None, "z": None, "width": 1.0}
 LAYERS_KEYS = {"spacing": 10.0}
 
@@ -92,7 +93,8 @@ class Case:
             rate = rate_from_table(rate["times"], rate["values"])
         self.orifice = Orifice(x=o["x"], width=o["width"], profile=o["profile"],
                                rate=rate, y=o.get("y"))
-        self.spots = Spots(drift=s["drift"], b=s["b"], b_par=s["b_par"], mode=s["mode"],
+        self.spots = Spots(drift=_field(s["drift"], self.grid), b=_field(s["b"], self.grid),
+                           b_par=_field(s["b_par"], self.grid), mode=s["mode"],
                            t_end=s["t_end"])
         self.tracer = _tracer(data.get("tracer"), self.grid, self.orifice)
         t = data.get("tracer")
@@ -252,7 +254,9 @@ def estimate_bytes(data: Mapping) -> int:
     nx = (d["x"][1] - d["x"][0]) / h
     nz = (d["z"][1] - d["z"][0]) / h
     if d["walls"] == "open":   # the spot density is solved on a padded, wider grid
-        nx += 2 * math.ceil(6.0 * math.sqrt(data["spots"]["b"] * (d["z"][1] - d["z"][0])) / h)
+        b = data["spots"]["b"]
+        b = max(b["values"]) if isinstance(b, Mapping) else b
+        nx += 2 * math.ceil(6.0 * math.sqrt(b * (d["z"][1] - d["z"][0])) / h)
     cells = nz * nx ** (dims - 1)
     reach_h = _REACH[k["shape"]] * k["size"]
     reach_v = reach_h / k["aspect"]
@@ -448,11 +452,43 @@ class _Validator:
             return None
         return out
 
+    def coefficient(self, key, value, **bounds):
+        """A number, or a profile ``{ x | z = [...], values = [...] }`` (piecewise linear)."""
+        if not isinstance(value, Mapping):
+            return self.number(key, value, **bounds)
+        t = self.table(key, value, PROFILE_KEYS)
+        if t is None:
+            return None
+        axes = [a for a in ("x", "z") if t[a] is not None]
+        if len(axes) != 1 or t["values"] is None:
+            self.problems.append(f"{key}: a profile needs exactly one coordinate list (x or z) "
+                                 "and a values list, e.g. { z = [0.0, 50.0], values = [1.0, 2.0] }")
+            return None
+        axis = axes[0]
+        out = {}
+        for name, kw in ((axis, {}), ("values", bounds)):
+            seq = t[name]
+            if not isinstance(seq, (list, tuple)) or not 2 <= len(seq) <= 10_000:
+                self.bad(f"{key}.{name}", "must be a list of 2 to 10000 numbers", seq)
+                return None
+            nums = [self.number(f"{key}.{name}[{i}]", v, **kw) for i, v in enumerate(seq)]
+            if any(v is None for v in nums):
+                return None
+            out[name] = nums
+        if len(out[axis]) != len(out["values"]):
+            self.problems.append(f"{key}: {axis} and values must have the same length, got "
+                                 f"{len(out[axis])} and {len(out['values'])}")
+            return None
+        if any(b <= a for a, b in zip(out[axis], out[axis][1:])):
+            self.bad(f"{key}.{axis}", "must be strictly increasing", out[axis])
+            return None
+        return out
+
     def _spots(self, t):
         return {
-            "drift": self.number("spots.drift", t["drift"], gt=0),
-            "b": self.number("spots.b", t["b"], gt=0),
-            "b_par": self.number("spots.b_par", t["b_par"], ge=0),
+            "drift": self.coefficient("spots.drift", t["drift"], gt=0),
+            "b": self.coefficient("spots.b", t["b"], gt=0),
+            "b_par": self.coefficient("spots.b_par", t["b_par"], ge=0),
             "mode": self.choice("spots.mode", t["mode"], SPOT_MODES),
             "t_end": self.number("spots.t_end", t["t_end"], ge=0),
         }
@@ -642,6 +678,20 @@ def _check_kernel(case: Case) -> None:
         lines = str(exc).splitlines() or [type(exc).__name__]
         raise CaseError([f"kernel: {line}" for line in lines]) from None
     orifice.source_profile(case.grid, case.orifice)
+
+
+def _field(value, grid: Grid):
+    """A constant, or a grid-shaped array from a piecewise-linear profile in x or z."""
+    if not isinstance(value, Mapping):
+        return value
+    import numpy as np
+
+    axis = "x" if "x" in value else "z"
+    line = np.interp(grid.coords()[axis], value[axis], value["values"])
+    shape = [1] * len(grid.shape)
+    index = grid.axes.index(axis)
+    shape[index] = line.size
+    return np.ascontiguousarray(np.broadcast_to(line.reshape(shape), grid.shape), dtype=float)
 
 
 def _tracer(t: Mapping | None, grid: Grid, orifice: Orifice) -> Tracer | None:

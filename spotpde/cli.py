@@ -1,4 +1,4 @@
-"""The ``spotpde`` command line: ``run``, ``check``, ``plot`` and ``--version``.
+"""The ``spotpde`` command line: ``run``, ``check``, ``plot``, ``sweep`` and ``--version``.
 
 Exit status (CONTRACT.md): 0 done; 2 invalid case or unreadable input (one line per
 problem on standard error, no traceback, no output file); 1 numerical failure (no
@@ -23,8 +23,9 @@ EXIT_OK, EXIT_NUMERICAL, EXIT_INVALID, EXIT_INTERRUPTED = 0, 1, 2, 130
 class Progress:
     """Stage progress on standard error: a tqdm bar on a terminal, plain lines otherwise.
 
-    Plain lines look like ``spotpde: spot density 40%`` and are printed at most every
-    ``step`` percent and at most every few seconds, so a log stays short.
+    Plain lines look like ``spotpde: spot density 50%`` and are printed when a stage
+    starts and each time it crosses a multiple of ``step`` percent (at most
+    ``1 + 100 / step`` lines per stage), so a log stays short.
 
     Args:
         stream: where to write (default ``sys.stderr``).
@@ -41,6 +42,7 @@ class Progress:
         self.last = -1
 
     def __call__(self, stage: str, fraction: float) -> None:
+        """Report ``fraction`` (0..1) of ``stage`` done (the pipeline's callback)."""
         pct = int(round(100 * min(max(fraction, 0.0), 1.0)))
         if stage != self.stage:
             self.close()
@@ -135,13 +137,39 @@ def cmd_plot(args) -> int:
     return EXIT_OK
 
 
+def cmd_sweep(args) -> int:
+    from .cases import load_case
+    from .sweep import parse_settings, sweep_case
+
+    if args.workers is not None and args.workers < 1:
+        raise CaseError(f"--workers: must be >= 1, got {args.workers}")
+    settings = parse_settings(args.set or [])
+    case = load_case(args.case)
+    output = args.output if args.output is not None else case.output_path
+
+    def progress(done: int, total: int) -> None:
+        if not args.quiet:
+            _say(f"spotpde: sweep {done}/{total} members finished")
+
+    t0 = time.monotonic()
+    ds = sweep_case(case, settings, output, scheduler=args.scheduler,
+                    n_workers=args.workers, progress=progress)
+    _say(f"spotpde: wrote {os.path.abspath(output)} ({time.monotonic() - t0:.1f} s)")
+    failed = ds.attrs.get("failed_members", "")
+    if failed:
+        for line in failed.splitlines():
+            _say(f"spotpde: member failed: {line}")
+        return EXIT_NUMERICAL
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``spotpde`` command."""
     p = argparse.ArgumentParser(
         prog="spotpde",
         description="Continuum spot model of dense granular drainage (Bazant 2004).")
     p.add_argument("--version", action="version", version=f"spotpde {__version__}")
-    sub = p.add_subparsers(dest="command", metavar="{run,check,plot}")
+    sub = p.add_subparsers(dest="command", metavar="{run,check,plot,sweep}")
     sub.required = True
     r = sub.add_parser("run", help="run a case and write one netCDF file")
     r.add_argument("case", metavar="CASE.toml")
@@ -157,6 +185,17 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("result", metavar="OUT.nc")
     f.add_argument("-o", "--output", metavar="FIG.png", help="default: OUT.png")
     f.set_defaults(func=cmd_plot)
+    w = sub.add_parser("sweep", help="run the product of case-key values on Dask, one netCDF file")
+    w.add_argument("case", metavar="CASE.toml")
+    w.add_argument("--set", action="append", metavar="KEY=V1,V2,...",
+                   help="values of one case key to sweep (repeat for more keys)")
+    w.add_argument("-o", "--output", metavar="SWEEP.nc", help="overrides output.path")
+    w.add_argument("--scheduler", metavar="ADDRESS",
+                   help="a running Dask scheduler (default: an embedded LocalCluster)")
+    w.add_argument("--workers", type=int, metavar="N",
+                   help="LocalCluster worker processes (default: the number of cores)")
+    w.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    w.set_defaults(func=cmd_sweep)
     return p
 
 

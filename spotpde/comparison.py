@@ -313,12 +313,10 @@ def plot_comparison(comparisons: Mapping[float, KinematicComparison], path=None)
     Returns:
         The matplotlib figure.
     """
-    import matplotlib
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(1, 3, figsize=(13, 4.2))
+    fig = Figure(figsize=(13, 4.2), layout="tight")   # off-screen, no pyplot state
+    ax = fig.subplots(1, 3)
     for lam, c in comparisons.items():
         ax[0].semilogy(c.z, c.speed_l2, label=f"speed, rule {lam:g}")
         ax[0].semilogy(c.z, c.horizontal_l2, "--", label=f"horizontal, rule {lam:g}")
@@ -335,7 +333,6 @@ def plot_comparison(comparisons: Mapping[float, KinematicComparison], path=None)
     ax[2].set(xlabel="x (d)", ylabel="z (d)", title="streamlines (dotted: kinematic)")
     ax[0].legend(fontsize=7)
     ax[1].legend(fontsize=7)
-    fig.tight_layout()
     if path is not None:
         fig.savefig(path, dpi=120)
     return fig

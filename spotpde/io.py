@@ -25,6 +25,9 @@ import xarray as xr
 UNITS_NOTE = ("lengths in particle diameters (unit 'd'); times in the case's time unit "
               "(unit 't': a spot rises spots.drift d per t)")
 
+#: Variables every result has (with a tracer also P, P_height, mass, outflow).
+REQUIRED = ("rho_s", "v_kin", "u_x", "u_z", "D_xx", "D_xz", "D_zz")
+
 COORDS = {
     "x": ("d", "horizontal position (cell centre)"),
     "y": ("d", "second horizontal position (cell centre)"),
@@ -167,7 +170,7 @@ def read_netcdf(path: str | os.PathLike) -> xr.Dataset:
 
     Raises:
         ValueError: the file is missing, unreadable, or not a spotpde result
-            (no ``rho_s`` variable).
+            (lacks one of :data:`REQUIRED`).
     """
     path = os.fspath(path)
     if not os.path.isfile(path):
@@ -177,9 +180,10 @@ def read_netcdf(path: str | os.PathLike) -> xr.Dataset:
             ds = ds.load()
     except Exception as exc:  # netCDF4/HDF5 raise assorted errors for bad files
         raise ValueError(f"{path}: not a readable netCDF file ({exc})") from None
-    if "rho_s" not in ds.data_vars:
-        raise ValueError(f"{path}: not a spotpde result (no rho_s variable; found "
-                         f"{', '.join(ds.data_vars) or 'no variables'})")
+    missing = [n for n in REQUIRED if n not in ds.data_vars]
+    if missing:
+        raise ValueError(f"{path}: not a spotpde result (missing {', '.join(missing)}; "
+                         f"found {', '.join(map(str, ds.data_vars)) or 'no variables'})")
     return ds
 
 

@@ -45,8 +45,10 @@ def run(case: Case | str, progress: Progress | None = None) -> xr.Dataset:
         The result :class:`xarray.Dataset` (lengths in d, times in the case unit).
 
     Raises:
-        spotpde.CaseError: invalid case.
-        spotpde.NumericalError: a solver blew up, or a result holds NaN or infinity.
+        spotpde.CaseError: invalid case (only when ``case`` is a path or mapping).
+        spotpde.NumericalError: a solver blew up, refused the derived fields (a
+            ``CaseError`` raised inside a stage, re-raised with its lines), or a result
+            holds NaN or infinity.
     """
     if not isinstance(case, Case):
         case = load_case(case)

@@ -1,4 +1,4 @@
-"""Standard figures of a result Dataset (matplotlib, headless Agg backend).
+"""Standard figures of a result Dataset (matplotlib, drawn off-screen).
 
 :func:`plot_result` writes one multi-panel PNG: spot density; downward particle speed
 next to the kinematic model on the same colour scale; speed profiles at a few heights;
@@ -14,12 +14,9 @@ import os
 from pathlib import Path
 
 import matplotlib
-
-matplotlib.use("Agg", force=False)
-
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import xarray as xr  # noqa: E402
+import numpy as np
+import xarray as xr
+from matplotlib.figure import Figure
 
 SPEED_CMAP = "viridis"
 LAYER_CMAP = "YlOrBr"
@@ -94,7 +91,7 @@ def plot_profiles(ds: xr.Dataset, ax, fractions=(0.1, 0.3, 0.6)) -> None:
     """Horizontal profiles of ``-u_z`` (solid) and ``v_kin`` (dashed) at a few heights."""
     m = midplane(ds)
     ztop = float(m.z[-1])
-    colors = plt.get_cmap("plasma")(np.linspace(0.1, 0.8, len(fractions)))
+    colors = matplotlib.colormaps["plasma"](np.linspace(0.1, 0.8, len(fractions)))
     for f, c in zip(fractions, colors):
         row = m.sel(z=f * ztop, method="nearest")
         ax.plot(row.x, -row.u_z, color=c, lw=1.8, label=f"z = {float(row.z):.3g} d")
@@ -205,9 +202,9 @@ def plot_result(ds: xr.Dataset, path: str | os.PathLike, *, dpi: int = 100) -> P
     height = float(m.z[-1] - m.z[0]) if m.sizes["z"] > 1 else 1.0
     panel_h = 4.4
     panel_w = float(np.clip(panel_h * width / height + 1.2, 3.2, 7.0))
-    fig, axes = plt.subplots(2, 4, figsize=(3 * panel_w + 5.0, 2 * panel_h + 0.9),
-                             gridspec_kw={"width_ratios": [panel_w] * 3 + [5.0]},
-                             constrained_layout=True)
+    # a bare Figure (no pyplot): drawn off-screen whatever backend the user has chosen
+    fig = Figure(figsize=(3 * panel_w + 5.0, 2 * panel_h + 0.9), layout="constrained")
+    axes = fig.subplots(2, 4, gridspec_kw={"width_ratios": [panel_w] * 3 + [5.0]})
     plot_spot_density(ds, axes[0, 0])
     plot_speed(ds, axes[0, 1], axes[0, 2])
     plot_profiles(ds, axes[0, 3])
@@ -238,7 +235,6 @@ def plot_result(ds: xr.Dataset, path: str | os.PathLike, *, dpi: int = 100) -> P
         fig.savefig(tmp, dpi=dpi)
         os.replace(tmp, path)
     finally:
-        plt.close(fig)
         if tmp.exists():
             tmp.unlink()
     return path

@@ -125,12 +125,14 @@ def steady(grid: Grid, orifice: Orifice, spots: Spots, progress: Progress = None
     """Steady mean spot density.
 
     ``D_par = 0``: ``d(v_s rho_s)/dz = lap_perp(b v_s rho_s)`` marched in height from
-    ``v_s rho_s = Q0 s(x)`` on the floor (exact cosine modes for uniform ``b``).
-    ``D_par > 0``: the elliptic problem ``div J = 0`` with inflow ``Q0 s`` through the
-    orifice, no flux through walls and the rest of the floor, advective outflow at
-    the top (``_elliptic``). Between reflecting walls
-    ``v_s * sum(rho_s) * h**(dims-1) = Q0`` at every height for ``D_par = 0`` (and at
-    the top for ``D_par > 0``) to round-off.
+    ``v_s rho_s = Q0 s(x)`` on the floor. ``D_par > 0``: the elliptic problem
+    ``div J = 0`` with inflow ``Q0 s`` through the orifice, no flux through walls and the
+    rest of the floor, advective (Danckwerts) outflow at the top. Uniform coefficients
+    (for ``D_par = 0`` only ``b`` need be uniform) are solved exactly in height mode by
+    mode (``_spectral``); otherwise by marching (``D_par = 0``) or finite volumes.
+    Between reflecting walls ``v_s * sum(rho_s) * h**(dims-1) = Q0`` at every height
+    to round-off for ``D_par = 0`` and for uniform coefficients, and the outflow through
+    the top equals ``Q0`` to round-off in the finite-volume case.
 
     Args:
         grid: the grid (walls reflecting or open).

@@ -216,7 +216,7 @@ class _Operator:
 class _Workspace:
     def __init__(self, grid: Grid, p_scale: float = 1.0):
         shape = grid.shape
-        self.tiny = 1e-200 * p_scale
+        self.tiny = 1e-100 * p_scale
         self.R = np.empty(shape)
         fshape = (shape[0] + 1,) + shape[1:]
         self.Fz = np.empty(fshape)
@@ -237,13 +237,13 @@ def _rhs(op: _Operator, P: np.ndarray, ws: _Workspace, w_acc: float) -> tuple[fl
     h = op.h
     f = op.faces
     if op.dims == 2:
-        K.rhs_2d(P, f["x"], f["z"], op.Axx, op.Azz, op.Cp, op.Cm, op.k_cross, op.limiter, op.eps, h,
-                 ws.R, ws.Fz, ws.Fz_acc, w_acc, ws.Gp, ws.Gm)
+        K.rhs_2d_kernel(op.limiter)(P, f["x"], f["z"], op.Axx, op.Azz, op.Cp, op.Cm, op.k_cross,
+                                    op.eps, h, ws.R, ws.Fz, ws.Fz_acc, w_acc, ws.Gp, ws.Gm)
         side = np.dot(f["x"][:, -1], P[:, -1]) - np.dot(f["x"][:, 0], P[:, 0])
         hm = h
     else:
-        K.advect_3d(P, f["x"], f["y"], f["z"], op.limiter, op.eps, h, ws.R, ws.Fz, ws.Fy,
-                    ws.Fz_acc, w_acc)
+        K.advect_3d_kernel(op.limiter)(P, f["x"], f["y"], f["z"], op.eps, h, ws.R, ws.Fz, ws.Fy,
+                                       ws.Fz_acc, w_acc)
         if not op.implicit and len(op.terms):
             ws.R += (op.L @ P.ravel()).reshape(P.shape)
             ws.Fz_acc += w_acc * (op.Bz @ P.ravel()).reshape(ws.Fz.shape)

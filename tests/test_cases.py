@@ -8,6 +8,7 @@ import re
 import tomllib
 from pathlib import Path
 
+import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -388,3 +389,50 @@ def test_rate_table_for_transient_runs():
     problems = problems_of(small(spots={"mode": "transient", "t_end": 4.0},
                                  orifice={"rate": {"times": [2.0, 1.0], "values": [1.0, 1.0]}}))
     assert problems == ["orifice.rate.times: must be strictly increasing, got [2.0, 1.0]"]
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.one_of(st.text(max_size=200), st.binary(max_size=100),
+                 st.sampled_from(["[domain]\nspacing = 0.5e", "[domain]\ndims = 3\n[domain]\n",
+                                  "domain = 3", "[[domain]]\nx = 1", "[tracer.start]\nx = 1"])))
+def test_arbitrary_files_load_or_raise_case_error(tmp_path_factory, content):
+    path = tmp_path_factory.mktemp("h") / "case.toml"
+    if isinstance(content, str):
+        path.write_text(content, encoding="utf-8")
+    else:
+        path.write_bytes(content)
+    try:
+        load_case(path)
+    except spotpde.CaseError as err:
+        assert err.problems and all(": " in p for p in err.problems)
+
+
+def test_spot_coefficient_profiles_become_grid_fields():
+    case = load_case(small(spots={"drift": {"x": [-4.0, 4.0], "values": [0.5, 1.5]},
+                                  "b": {"z": [0.0, 8.0], "values": [1.0, 3.0]}}))
+    grid = case.grid
+    assert case.spots.drift.shape == case.spots.b.shape == grid.shape
+    np.testing.assert_allclose(case.spots.drift[3], 1.0 + grid.x / 8.0)
+    np.testing.assert_allclose(case.spots.b[:, 5], 1.0 + grid.z / 4.0)
+    assert case.spots.b_par == 0.0
+    assert load_case(tomllib.loads(case.to_toml())).data == case.data
+    three = load_case(small(domain={"dims": 3},
+                            spots={"drift": {"x": [-4.0, 4.0], "values": [0.5, 1.5]}}))
+    assert three.spots.drift.shape == three.grid.shape
+    np.testing.assert_allclose(three.spots.drift[2, 7], 1.0 + three.grid.x / 8.0)
+
+
+@pytest.mark.parametrize("profile, expected", [
+    ({"x": [0.0, 1.0], "z": [0.0, 1.0], "values": [1.0, 1.0]},
+     "spots.b: a profile needs exactly one coordinate list (x or z)"),
+    ({"z": [0.0, 1.0]}, "spots.b: a profile needs exactly one coordinate list"),
+    ({"z": [0.0, 1.0], "values": [1.0, -1.0]}, "spots.b.values[1]: must be > 0, got -1.0"),
+    ({"z": [1.0, 0.0], "values": [1.0, 1.0]}, "spots.b.z: must be strictly increasing"),
+    ({"z": [0.0, 1.0, 2.0], "values": [1.0, 1.0]},
+     "spots.b: z and values must have the same length, got 3 and 2"),
+    ({"z": [0.0], "values": [1.0]}, "spots.b.z: must be a list of 2 to 10000 numbers"),
+    ({"y": [0.0, 1.0], "values": [1.0, 1.0]}, "spots.b.y: unknown key"),
+])
+def test_invalid_coefficient_profiles(profile, expected):
+    problems = problems_of(small(spots={"b": profile}))
+    assert any(p.startswith(expected) for p in problems), problems

@@ -123,7 +123,7 @@ def test_run_builds_the_contract_dataset(fakes, dims):
                      "kinematic.speed", "tracer.solve"]
     assert fakes[-1][1:3] == (2.0, 4)
     assert fakes[-1][3] == pytest.approx(1.0)       # P0 normalised
-    assert fakes[-1][4] == {"limiter": "koren", "cfl": 0.9, "diffusion": "auto"}
+    assert fakes[-1][4] == {"limiter": "weno5", "cfl": 0.9, "diffusion": "auto"}
 
 
 def test_v_kin_carries_the_flux_V1_Q0(fakes):
@@ -265,3 +265,15 @@ def test_tracer_options_match_the_tracer_solver():
     assert set(cases.DIFFUSION_MODES) == set(tracer.DIFFUSION_MODES)
     case = load_case(small(tracer={"limiter": "upwind", "cfl": 0.5, "diffusion": "implicit"}))
     assert case.tracer_options == {"limiter": "upwind", "cfl": 0.5, "diffusion": "implicit"}
+
+
+def test_real_pipeline_with_spot_coefficient_profiles():
+    _real_modules()
+    case = load_case(small(spots={"drift": {"x": [-4.0, 0.0, 4.0], "values": [0.5, 1.0, 0.5]},
+                                  "b": {"z": [0.0, 8.0], "values": [1.0, 2.0]}},
+                           tracer=None))
+    ds = spotpde.run(case)
+    grid = case.grid
+    flux = (ds.rho_s * case.spots.drift).sum("x").values * grid.spacing
+    np.testing.assert_allclose(flux[2:], 10.0, rtol=0.05)     # v_s rho_s carries Q0
+    assert ds.attrs["case"].count("values") == 2
