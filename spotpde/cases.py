@@ -151,11 +151,14 @@ class Case:
 
 # -- loading ------------------------------------------------------------------------
 
-def load_case(source: str | os.PathLike | Mapping) -> Case:
+def load_case(source: str | os.PathLike | Mapping, *, frames_in_memory: bool = True) -> Case:
     """Read and validate a case.
 
     Args:
         source: path of a TOML case file, or a mapping with the same tables and keys.
+        frames_in_memory: count the tracer frames in the memory check. ``False`` for a
+            run that streams them to its result file (``spotpde.run(case, path=...)``,
+            what ``spotpde run`` does).
 
     Returns:
         The validated :class:`Case`.
@@ -186,17 +189,18 @@ def load_case(source: str | os.PathLike | Mapping) -> Case:
     else:
         raise CaseError(
             f"case: must be a path to a TOML file or a mapping, got {type(source).__name__}")
-    data = validate(raw)
+    data = validate(raw, frames_in_memory=frames_in_memory)
     case = Case(data, text, path)
     _check_kernel(case)
     return case
 
 
-def validate(raw: Mapping) -> dict:
+def validate(raw: Mapping, *, frames_in_memory: bool = True) -> dict:
     """Validate a raw case mapping.
 
     Args:
         raw: tables and keys as read from TOML.
+        frames_in_memory: count the tracer frames in the memory check.
 
     Returns:
         The normalised mapping (floats as ``float``, every default filled in).
@@ -209,7 +213,7 @@ def validate(raw: Mapping) -> dict:
     if not v.problems:
         v.cross(data)
     if not v.problems:
-        v.memory(data)
+        v.memory(data, frames_in_memory)
     if v.problems:
         raise CaseError(v.problems)
     return data
@@ -236,7 +240,7 @@ def available_memory() -> int:
         return 4 * 1024**3
 
 
-def estimate_bytes(data: Mapping) -> int:
+def estimate_bytes(data: Mapping, frames_in_memory: bool = True) -> int:
     """Estimate the memory a run of a validated case holds at its peak.
 
     Counts every grid array of the run (spot density, kinematic speed, drift and
@@ -245,6 +249,8 @@ def estimate_bytes(data: Mapping) -> int:
 
     Args:
         data: a mapping that passed the per-key checks (``validate`` internals).
+        frames_in_memory: count the tracer frames (``False`` when they are streamed to
+            the result file one at a time).
 
     Returns:
         Estimated peak bytes (a float-safe int).
@@ -268,7 +274,8 @@ def estimate_bytes(data: Mapping) -> int:
     tracer = data.get("tracer")
     n_tracer = 0
     if tracer is not None:
-        n_tracer = tracer["frames"] + 1 + 16        # frames, P_height, scheme fluxes/stages
+        # frames (one in flight when streamed), P_height, scheme fluxes and stages
+        n_tracer = (tracer["frames"] if frames_in_memory else 1) + 1 + 16
     total = 8.0 * cells * (n_fields + scratch + n_tracer)
     total += 16.0 * padded * 6 + 8.0 * stencil * 2
     return int(min(total, 1e30))
@@ -636,8 +643,8 @@ class _Validator:
                 self.bad("tracer.layers.spacing", f"must be < 2 * the domain height "
                          f"{_show(z1 - z0)} to leave a band and a gap in the silo", sp)
 
-    def memory(self, data):
-        need = estimate_bytes(data) + BASELINE_BYTES
+    def memory(self, data, frames_in_memory=True):
+        need = estimate_bytes(data, frames_in_memory) + BASELINE_BYTES
         have = available_memory()
         if need > MEMORY_FRACTION * have:
             d = data["domain"]

@@ -88,11 +88,10 @@ def cmd_check(args) -> int:
 
 
 def cmd_run(args) -> int:
-    from . import io
     from .cases import load_case
     from .pipeline import run
 
-    case = load_case(args.case)
+    case = load_case(args.case, frames_in_memory=False)   # frames are streamed to the file
     if args.output is not None:
         case = case.with_output(args.output)
     out = case.output_path
@@ -107,11 +106,10 @@ def cmd_run(args) -> int:
     progress = None if args.quiet else Progress()
     t0 = time.monotonic()
     try:
-        ds = run(case, progress=progress)
+        ds = run(case, progress=progress, path=out)
     finally:
         if progress is not None:
             progress.close()
-    io.write_netcdf(ds, out)
     args.written = out
     _say(f"spotpde: wrote {out} ({time.monotonic() - t0:.1f} s)")
     if fig is not None:

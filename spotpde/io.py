@@ -5,7 +5,9 @@ CONTRACT.md variable names, dims ``("z", "x")`` / ``("z", "y", "x")`` (tracer fr
 a leading ``"t"``) and CF-style ``units`` / ``long_name`` on every variable and
 coordinate. :func:`write_netcdf` writes netCDF4 with zlib compression atomically (a
 temporary file in the same directory, then :func:`os.replace`), so an interrupted or
-failed write never leaves a half-written result. :func:`read_netcdf` reads one back.
+failed write never leaves a half-written result. :class:`FrameWriter` does the same for a
+run whose tracer frames are streamed to the file as the solver produces them, so memory
+does not grow with the number of frames. :func:`read_netcdf` reads a result back.
 
 Unit strings: ``d`` is the particle diameter (the length unit), ``t`` the case's time
 unit (the time in which a spot rises ``spots.drift`` diameters); they are *not* the
@@ -157,6 +159,91 @@ def write_netcdf(ds: xr.Dataset, path: str | os.PathLike, *, complevel: int = 4)
             pass
         raise
     return path
+
+
+class FrameWriter:
+    """Stream tracer frames into a result file, then add the rest of the result, atomically.
+
+    Used as ``on_frame`` callback of :func:`spotpde.tracer.solve`. The file is a
+    temporary one in the target's directory until :meth:`finish` renames it onto
+    ``path``; leaving the ``with`` block with an exception (or Ctrl-C) removes it and
+    leaves an existing ``path`` untouched. The finished file is the same as
+    :func:`write_netcdf` writes for the whole Dataset: ``P`` is compressed the same way,
+    chunked one frame at a time.
+
+    Args:
+        path: the result file to write (its directory must exist).
+        grid: :class:`spotpde.grid.Grid` of the run.
+        times: the frame times in t.
+        complevel: zlib compression level 1..9.
+    """
+
+    def __init__(self, path: str | os.PathLike, grid, times, *, complevel: int = 4):
+        import netCDF4
+
+        self.path = Path(os.path.abspath(path))
+        self.complevel = complevel
+        fd, self.tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp",
+                                        dir=self.path.parent)
+        os.close(fd)
+        try:
+            nc = netCDF4.Dataset(self.tmp, "w", format="NETCDF4")
+            axes = ("t", *grid.axes)
+            coords = {"t": np.asarray(times, dtype=float), **grid.coords()}
+            for axis in axes:
+                nc.createDimension(axis, len(coords[axis]))
+                var = nc.createVariable(axis, "f8", (axis,))
+                var[:] = coords[axis]
+                units, long_name = COORDS[axis]
+                var.setncatts({"units": units, "long_name": long_name})
+            P = nc.createVariable("P", "f8", axes, zlib=True, complevel=complevel,
+                                  shuffle=True, chunksizes=(1, *grid.shape))
+            P.setncatts(variable_attrs("P", grid.dims))
+        except BaseException:
+            self.abort()
+            raise
+        self._nc = nc
+        self.frames_written = 0
+
+    def __call__(self, index: int, time: float, P: np.ndarray) -> None:
+        """Write frame ``index`` (the tracer's ``on_frame`` callback)."""
+        self._nc["P"][index] = P
+        self.frames_written += 1
+
+    def finish(self, ds: xr.Dataset) -> Path:
+        """Add every other variable and the global attributes, then rename onto ``path``.
+
+        Args:
+            ds: the result Dataset without ``P`` (its ``t`` coordinate as the frames').
+
+        Returns:
+            The absolute path written.
+        """
+        self._nc.close()
+        encoding = {name: {"zlib": True, "complevel": self.complevel, "shuffle": True}
+                    for name in ds.data_vars}
+        ds.to_netcdf(self.tmp, mode="a", format="NETCDF4", engine="netcdf4",
+                     encoding=encoding)
+        os.chmod(self.tmp, 0o666 & ~_umask())
+        os.replace(self.tmp, self.path)
+        return self.path
+
+    def abort(self) -> None:
+        """Remove the temporary file (nothing is left behind)."""
+        nc = getattr(self, "_nc", None)
+        if nc is not None and nc.isopen():
+            nc.close()
+        try:
+            os.unlink(self.tmp)
+        except FileNotFoundError:
+            pass
+
+    def __enter__(self) -> "FrameWriter":
+        return self
+
+    def __exit__(self, kind, value, tb) -> None:
+        if kind is not None:
+            self.abort()
 
 
 def read_netcdf(path: str | os.PathLike) -> xr.Dataset:

@@ -16,6 +16,7 @@ The Dataset has the CONTRACT.md variables and global attributes ``V1``, ``V2``, 
 from __future__ import annotations
 
 import importlib
+import os
 from typing import Callable
 
 import numpy as np
@@ -24,7 +25,7 @@ import xarray as xr
 from ._version import __version__
 from .cases import Case, load_case
 from .errors import CaseError, NumericalError
-from .io import make_dataset
+from .io import FrameWriter, make_dataset, write_netcdf
 from .parameters import TracerStart
 
 #: The pipeline's stages, in order, as reported to ``progress``.
@@ -33,13 +34,18 @@ STAGES = ("spot density", "particle fields", "kinematic model", "tracer")
 Progress = Callable[[str, float], None]
 
 
-def run(case: Case | str, progress: Progress | None = None) -> xr.Dataset:
+def run(case: Case | str, progress: Progress | None = None, *,
+        path: str | os.PathLike | None = None) -> xr.Dataset:
     """Run a case.
 
     Args:
         case: a :class:`spotpde.cases.Case` (or a path / mapping for :func:`load_case`).
         progress: optional ``progress(stage, fraction)`` callback, ``stage`` one of
             :data:`STAGES`, ``fraction`` in 0..1 (a few hundred calls per stage at most).
+        path: also write the result there as netCDF, atomically. The tracer frames are
+            then streamed to the file as they are computed instead of being held in
+            memory, and the returned Dataset reads ``P`` lazily from the file (one
+            frame per chunk), so memory does not grow with ``tracer.frames``.
 
     Returns:
         The result :class:`xarray.Dataset` (lengths in d, times in the case unit).
@@ -53,14 +59,23 @@ def run(case: Case | str, progress: Progress | None = None) -> xr.Dataset:
     if not isinstance(case, Case):
         case = load_case(case)
     try:
-        return _run(case, progress)
+        if path is None:
+            return _run(case, progress)
+        if case.tracer is None:
+            ds = _run(case, progress)
+            write_netcdf(ds, path)
+            return ds
+        times = np.linspace(0.0, case.tracer.t_end, case.tracer.frames)
+        with FrameWriter(path, case.grid, times) as writer:
+            written = writer.finish(_run(case, progress, on_frame=writer))
+        return xr.open_dataset(written, engine="netcdf4", chunks={})  # P: one frame a chunk
     except CaseError as err:
         # The case passed validation, so a solver refusing its inputs here is refusing
         # derived data (fields, densities): a numerical failure, not an invalid case.
         raise NumericalError("; ".join(err.problems)) from None
 
 
-def _run(case: Case, progress: Progress | None) -> xr.Dataset:
+def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
     grid, orifice, spots = case.grid, case.orifice, case.spots
 
     spot_density = importlib.import_module("spotpde.spot_density")
@@ -98,9 +113,12 @@ def _run(case: Case, progress: Progress | None) -> xr.Dataset:
         tracer = importlib.import_module("spotpde.tracer")
         P0 = initial_density(grid, case.tracer.start)
         res = tracer.solve(grid, fields, P0, case.tracer.t_end, case.tracer.frames,
-                           progress=_stage(progress, "tracer"), **case.tracer_options)
+                           progress=_stage(progress, "tracer"), on_frame=on_frame,
+                           **case.tracer_options)
         times = np.asarray(res.times, dtype=float)
-        out.update(P=res.P, P_height=res.P_height, mass=res.mass, outflow=res.outflow)
+        out.update(P_height=res.P_height, mass=res.mass, outflow=res.outflow)
+        if res.P is not None:      # None: the frames went to on_frame
+            out["P"] = res.P
     for name, arr in out.items():
         _check_finite(name, np.asarray(arr, dtype=float))
 

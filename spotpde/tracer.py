@@ -67,7 +67,8 @@ class TracerResult:
 
     Attributes:
         times: (frames,) output times.
-        P: (frames, *grid.shape) probability density in 1/d**dims.
+        P: (frames, *grid.shape) probability density in 1/d**dims; ``None`` when the
+            frames were handed to ``on_frame`` instead of being kept.
         mass: (frames,) probability inside the domain, ``sum(P) h**dims``.
         outflow: (frames,) cumulative probability that left through the floor
             (orifice), the open sides and the top up to each frame.
@@ -88,7 +89,7 @@ class TracerResult:
     """
 
     times: np.ndarray
-    P: np.ndarray
+    P: np.ndarray | None
     mass: np.ndarray
     outflow: np.ndarray
     P_height: np.ndarray
@@ -277,7 +278,8 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
           progress: Callable[[float], None] | None = None, *, limiter: str = "weno5",
           time_scheme: str = "ssprk3", diffusion: str = "auto", cfl: float = 0.9,
           outlet: np.ndarray | None = None, check_mass: float = 1e-9,
-          threads: int | None = None) -> TracerResult:
+          threads: int | None = None,
+          on_frame: Callable[[int, float, np.ndarray], None] | None = None) -> TracerResult:
     """Evolve the tracer density ``P`` from ``P0`` over ``[0, t_end]``.
 
     Args:
@@ -306,6 +308,10 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
         check_mass: relative tolerance of the mass budget checked at every frame.
         threads: numba threads for the kernels; default 1 below 65536 cells (thread
             start-up costs more than it saves there) and numba's default above.
+        on_frame: optional ``on_frame(index, time, P)`` called with every frame (index 0
+            is ``P0``) after its checks passed; the frames are then *not* kept
+            (``TracerResult.P`` is ``None``), so memory does not grow with ``frames``.
+            ``P`` is the solver's working array: copy or write it out, do not keep it.
 
     Returns:
         :class:`TracerResult`.
@@ -353,13 +359,13 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
     numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
     try:
         return _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl,
-                      outlet, check_mass)
+                      outlet, check_mass, on_frame)
     finally:
         numba.set_num_threads(saved)
 
 
 def _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl, outlet,
-           check_mass):
+           check_mass, on_frame=None):
     steady = not callable(fields)
     get = (lambda t: fields) if steady else fields
     f0 = _check_fields(grid, get(0.0), "fields")
@@ -392,8 +398,12 @@ def _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl
 
     hv = grid.cell_volume
     times = np.linspace(0.0, float(t_end), frames)
-    out_P = np.empty((frames,) + grid.shape)
-    out_P[0] = P
+    if on_frame is None:
+        out_P = np.empty((frames,) + grid.shape)
+        out_P[0] = P
+    else:
+        out_P = None
+        on_frame(0, 0.0, P)
     mass = np.empty(frames)
     outflow = np.zeros(frames)
     mass[0] = P.sum() * hv
@@ -452,7 +462,6 @@ def _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl
                 max_courant = max(max_courant, dt * max(o.umax for o in ops) / grid.spacing)
                 if progress is not None and steps % every == 0:
                     progress(min(1.0, t / t_end))
-        out_P[j] = P
         mass[j] = P.sum() * hv
         outflow[j] = sum(budget)
         pmin = float(P.min()) if P.size else 0.0
@@ -466,6 +475,10 @@ def _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl
         if err > check_mass:
             raise NumericalError(f"tracer: mass budget broken at t = {t:g}: mass + outflow "
                                  f"differs from the initial mass by {err:.3g} (relative)")
+        if out_P is None:
+            on_frame(j, float(times[j]), P)
+        else:
+            out_P[j] = P
         if progress is not None:
             progress(j / (frames - 1))
 

@@ -65,12 +65,15 @@ def fake_dataset(case):
 
 @pytest.fixture
 def fake_run(monkeypatch):
-    def run(case, progress=None):
+    def run(case, progress=None, *, path=None):
         for stage in pipeline.STAGES:
             for f in np.linspace(0, 1, 21):
                 if progress:
                     progress(stage, f)
-        return fake_dataset(case)
+        ds = fake_dataset(case)
+        if path is not None:
+            sio.write_netcdf(ds, path)
+        return ds
 
     monkeypatch.setattr(pipeline, "run", run)
     return run
@@ -160,7 +163,7 @@ def test_run_into_a_missing_directory_is_invalid(small_case, fake_run, capsys, t
 
 
 def test_numerical_failure_exits_1_without_a_file(small_case, monkeypatch, capsys):
-    def blow_up(case, progress=None):
+    def blow_up(case, progress=None, **_):
         raise spotpde.NumericalError("P < 0 at t = 3")
 
     monkeypatch.setattr(pipeline, "run", blow_up)
@@ -170,7 +173,7 @@ def test_numerical_failure_exits_1_without_a_file(small_case, monkeypatch, capsy
 
 
 def test_ctrl_c_during_the_run_exits_130_without_a_file(small_case, monkeypatch, capsys):
-    def interrupted(case, progress=None):
+    def interrupted(case, progress=None, **_):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(pipeline, "run", interrupted)
@@ -264,7 +267,7 @@ def test_sigint_stops_a_run_with_130_and_no_file(tmp_path):
     script = textwrap.dedent("""
         import sys, time
         import spotpde.pipeline, spotpde.cli
-        def slow(case, progress=None):
+        def slow(case, progress=None, **_):
             progress("spot density", 0.0)
             while True:
                 time.sleep(0.05)

@@ -76,7 +76,7 @@ def fakes(monkeypatch):
         calls.append(("void.particle_fields", V1))
         return fields(grid, rho_s, V1, V1)
 
-    def tracer_solve(grid, flds, P0, t_end, frames, progress=None, **options):
+    def tracer_solve(grid, flds, P0, t_end, frames, progress=None, on_frame=None, **options):
         calls.append(("tracer.solve", t_end, frames, float(P0.sum() * grid.cell_volume),
                       options))
         times = np.linspace(0.0, t_end, frames)
@@ -84,6 +84,10 @@ def fakes(monkeypatch):
         if progress:
             progress(1.0)
         P = np.stack([P0 * d for d in decay])
+        if on_frame is not None:
+            for j, frame in enumerate(P):
+                on_frame(j, times[j], frame)
+            P = None
         return types.SimpleNamespace(times=times, P=P, mass=decay, outflow=1 - decay,
                                      P_height=np.full(grid.shape, 0.5))
 
