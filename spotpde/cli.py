@@ -1,4 +1,4 @@
-"""The ``spotpde`` command line: ``run``, ``check``, ``plot``, ``sweep`` and ``--version``.
+"""The ``spotpde`` command line: ``run``, ``check``, ``plot``, ``sweep``, ``compare``, ``--version``.
 
 Exit status (CONTRACT.md): 0 done; 2 invalid case or unreadable input (one line per
 problem on standard error, no traceback, no output file); 1 numerical failure (no
@@ -161,13 +161,20 @@ def cmd_sweep(args) -> int:
     return EXIT_OK
 
 
+def cmd_compare(args) -> int:
+    from .comparison import main as compare_main
+
+    argv = [args.case, "--rules", *map(str, args.rules)]
+    return compare_main(argv + (["-o", args.output] if args.output else []))
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``spotpde`` command."""
     p = argparse.ArgumentParser(
         prog="spotpde",
         description="Continuum spot model of dense granular drainage (Bazant 2004).")
     p.add_argument("--version", action="version", version=f"spotpde {__version__}")
-    sub = p.add_subparsers(dest="command", metavar="{run,check,plot,sweep}")
+    sub = p.add_subparsers(dest="command", metavar="{run,check,plot,sweep,compare}")
     sub.required = True
     r = sub.add_parser("run", help="run a case and write one netCDF file")
     r.add_argument("case", metavar="CASE.toml")
@@ -194,6 +201,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="LocalCluster worker processes (default: the number of cores)")
     w.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     w.set_defaults(func=cmd_sweep)
+    k = sub.add_parser("compare", help="spot-model mean flow against the Kinematic Model, "
+                                       "rule by rule (numbers and a figure)")
+    k.add_argument("case", metavar="CASE.toml")
+    k.add_argument("--rules", type=float, nargs="+", default=[0.5, 1.0], metavar="LAM",
+                   help="rules lam to compare (default: 0.5 1)")
+    k.add_argument("-o", "--output", metavar="FIG.png", help="write the comparison figure")
+    k.set_defaults(func=cmd_compare)
     return p
 
 

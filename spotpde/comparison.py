@@ -317,22 +317,25 @@ def plot_comparison(comparisons: Mapping[float, KinematicComparison], path=None)
 
     fig = Figure(figsize=(13, 4.2), layout="tight")   # off-screen, no pyplot state
     ax = fig.subplots(1, 3)
-    for lam, c in comparisons.items():
-        ax[0].semilogy(c.z, c.speed_l2, label=f"speed, rule {lam:g}")
-        ax[0].semilogy(c.z, c.horizontal_l2, "--", label=f"horizontal, rule {lam:g}")
-        ax[1].plot(c.z, c.b_speed_spot, label=f"b from v_spot, rule {lam:g}")
-        ax[1].plot(c.z, c.b_horizontal, "--", label=f"b from u_x, rule {lam:g}")
-        for p in c.streamlines_spot:
-            ax[2].plot(p[:, 0], p[:, -1], lw=1, label=None)
+    for i, (lam, c) in enumerate(comparisons.items()):
+        colour = f"C{i}"
+        ax[0].semilogy(c.z, c.speed_l2, color=colour, label=f"speed, rule {lam:g}")
+        ax[0].semilogy(c.z, c.horizontal_l2, "--", color=colour,
+                       label=f"horizontal, rule {lam:g}")
+        ax[1].plot(c.z, c.b_speed_spot, color=colour, label=f"b from v_spot, rule {lam:g}")
+        ax[1].plot(c.z, c.b_horizontal, "--", color=colour, label=f"b from u_x, rule {lam:g}")
+        for j, p in enumerate(c.streamlines_spot):
+            ax[2].plot(p[:, 0], p[:, -1], color=colour, lw=1.2,
+                       label=f"rule {lam:g}" if j == 0 else None)
     first = next(iter(comparisons.values()))
     ax[1].plot(first.z, first.b_speed_kin, "k:", label="b from v_kin")
-    for p in first.streamlines_kin:
-        ax[2].plot(p[:, 0], p[:, -1], "k:", lw=1)
+    for j, p in enumerate(first.streamlines_kin):
+        ax[2].plot(p[:, 0], p[:, -1], "k:", lw=1.2, label="kinematic" if j == 0 else None)
     ax[0].set(xlabel="z (d)", ylabel="relative L2 difference", title="spot vs kinematic")
     ax[1].set(xlabel="z (d)", ylabel="effective b (d)")
     ax[2].set(xlabel="x (d)", ylabel="z (d)", title="streamlines (dotted: kinematic)")
-    ax[0].legend(fontsize=7)
-    ax[1].legend(fontsize=7)
+    for a in ax:
+        a.legend(fontsize=7)
     if path is not None:
         fig.savefig(path, dpi=120)
     return fig

@@ -23,13 +23,6 @@ from spotpde.grid import Grid
 from spotpde.parameters import Spots
 
 
-@pytest.fixture(autouse=True)
-def _quick_fft_plans(monkeypatch):
-    """Physics, not speed, is tested here: FFTW_ESTIMATE plans (FFTW_MEASURE costs seconds
-    per new transform shape on a busy machine; results agree to round-off)."""
-    monkeypatch.setenv("SPOTPDE_FFTW_PLANNER", "FFTW_ESTIMATE")
-
-
 def _interior(grid, kernel=None, margin=0.0):
     """Boolean mask of cells farther than the kernel reach (+ margin) from every boundary."""
     rh, rz = kernel.reach if kernel is not None else (0.0, 0.0)

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from spotpde import comparison, kernels
+from spotpde import cli, comparison, kernels
 from spotpde.grid import Grid
 from spotpde.parameters import Orifice, Spots
 
@@ -23,13 +23,6 @@ B, HEIGHT = 1.3, 0.0024
 
 @pytest.fixture(scope="module")
 def results():
-    # physics, not speed: FFTW_ESTIMATE plans (FFTW_MEASURE costs seconds per new shape)
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("SPOTPDE_FFTW_PLANNER", "FFTW_ESTIMATE")
-        return _results()
-
-
-def _results():
     grid = Grid(2, (-40.0, 40.0), (0.0, 40.0), 0.5)
     parts = dict(grid=grid, orifice=Orifice(x=0.0, width=0.0, rate=2.0), spots=Spots(drift=1.5, b=B),
                  kernel=kernels.Uniform(radius=2.5, height=HEIGHT, dims=2))
@@ -101,14 +94,17 @@ def test_compare_with_kinematic_rejects_bad_input():
         comparison.compare_with_kinematic(parts)
 
 
-def test_command_line_prints_summary_and_writes_figure(tmp_path, capsys, monkeypatch):
-    monkeypatch.setenv("SPOTPDE_FFTW_PLANNER", "FFTW_ESTIMATE")
+@pytest.mark.parametrize("entry", [comparison.main, lambda argv: cli.main(["compare", *argv])],
+                         ids=["python -m spotpde.comparison", "spotpde compare"])
+def test_command_line_prints_summary_and_writes_figure(entry, tmp_path, capsys):
     case = tmp_path / "c.toml"
     case.write_text('[domain]\nx = [-20.0, 20.0]\nz = [0.0, 20.0]\nspacing = 0.5\n'
                     '[kernel]\nshape = "uniform"\nsize = 2.5\nvolume = 0.0471238898038469\n')
     fig = tmp_path / "cmp.png"
-    assert comparison.main([str(case), "--rules", "0.5", "1", "-o", str(fig)]) == 0
+    assert entry([str(case), "--rules", "0.5", "1", "-o", str(fig)]) == 0
     out = capsys.readouterr().out.splitlines()
     assert len(out) == 2 and out[0].startswith("rule=0.5") and out[1].startswith("rule=1")
+    assert fig.stat().st_size > 1000
+    assert entry([str(tmp_path / "missing.toml")]) == 2 and out[0].startswith("rule=0.5") and out[1].startswith("rule=1")
     assert fig.stat().st_size > 1000
     assert comparison.main([str(tmp_path / "missing.toml")]) == 2
