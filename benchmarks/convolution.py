@@ -24,26 +24,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import time
 
 import numpy as np
+from _timing import best_times
 from scipy.signal import fftconvolve
 
 from spotpde import _fft, kernels
 from spotpde.convolution import convolve
-
-
-def best_times(fns, repeat):
-    """Best wall time of each function; calls interleaved so both see the same machine load."""
-    for fn in fns:
-        fn()  # warm-up (plans, spectrum cache)
-    best = [np.inf] * len(fns)
-    for _ in range(repeat):
-        for k, fn in enumerate(fns):
-            t0 = time.perf_counter()
-            fn()
-            best[k] = min(best[k], time.perf_counter() - t0)
-    return best
 
 
 def full_stencil(n, dims):

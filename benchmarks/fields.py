@@ -30,9 +30,9 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
+from _timing import best_time
 from scipy.linalg import solve_banded
 from scipy.signal import fftconvolve
 from scipy.special import erf
@@ -118,16 +118,6 @@ def scipy_particle_fields(grid, rho_s, spots, kernel, rule):
         "D_xz": np.zeros(grid.shape),
         "D_zz": hd * fftconvolve(D_par * rho_s, w2, mode="same"),
     }
-
-
-def best_time(fn, repeat):
-    result = fn()  # warm-up: FFTW plans, kernel spectra, imports
-    best = np.inf
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        result = fn()
-        best = min(best, time.perf_counter() - t0)
-    return best, result
 
 
 def main():

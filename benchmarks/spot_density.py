@@ -31,27 +31,17 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from _timing import best_time
 from scipy.linalg import solve_banded
 
 from spotpde import _elliptic, spot_density
 from spotpde.grid import Grid
 from spotpde.orifice import source_profile
 from spotpde.parameters import Orifice, Spots
-
-
-def best_time(fn, repeat):
-    fn()                                   # warm-up (numba compilation, FFT plans)
-    times = []
-    for _ in range(repeat):
-        t = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t)
-    return min(times), out
 
 
 def scipy_cn_2d(grid, orifice, b):

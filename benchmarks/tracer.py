@@ -20,23 +20,12 @@ import time
 
 import numba
 import numpy as np
+from _timing import best_time
 
 from spotpde import _fp_kernels as K
 from spotpde import tracer
 from spotpde._timestepping import SSPRK3
 from spotpde.grid import Grid
-
-
-def best_time(fn, repeat, clock=time.perf_counter):
-    """Best of ``repeat`` timings; ``clock=time.thread_time`` counts only this thread's CPU
-    time (meaningful with one numba thread on a shared machine)."""
-    fn()
-    best = np.inf
-    for _ in range(repeat):
-        t0 = clock()
-        fn()
-        best = min(best, clock() - t0)
-    return best
 
 
 def fields_for(grid):
@@ -75,15 +64,15 @@ def main():
         N = P.size
         for threads in args.threads:
             numba.set_num_threads(threads)
-            t_lap1 = best_time(lambda: K.laplacian_5pt_serial(P, out), args.repeat, clock)
+            t_lap1 = best_time(lambda: K.laplacian_5pt_serial(P, out), args.repeat, clock)[0]
             for name, code in (("koren", K.KOREN), ("weno5", K.WENO5)):
                 op = tracer._Operator(grid, f, code, np.ones(n, bool), implicit=False)
                 ws = tracer._Workspace(grid)
-                t_rhs = best_time(lambda: tracer._rhs(op, P, ws, 0.0), args.repeat, clock)
+                t_rhs = best_time(lambda: tracer._rhs(op, P, ws, 0.0), args.repeat, clock)[0]
                 budget = [0.0, 0.0, 0.0]
                 Pw = P.copy()
                 t_step = best_time(lambda: tracer._rk_step([op] * 3, Pw, 1e-6, SSPRK3, ws, budget),
-                                   args.repeat, clock)
+                                   args.repeat, clock)[0]
                 print(f"{n:>5} {threads:>3} {name:>7} {N / t_lap1 / 1e6:10.0f} {N / t_rhs / 1e6:9.0f} "
                       f"{N / t_step / 1e6:10.0f} {t_rhs / t_lap1:9.1f} {t_step / t_lap1:10.1f}")
 

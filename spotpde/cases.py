@@ -306,11 +306,9 @@ class _Validator:
     def __init__(self):
         self.problems: list[str] = []
 
-    def bad(self, key: str, message: str, value: Any = None, show: bool = True):
-        line = f"{key}: {message}"
-        if show:
-            line += f", got {_show(value)}"
-        self.problems.append(line)
+    def bad(self, key: str, message: str, value: Any = None):
+        """Record ``"key: message, got value"``."""
+        self.problems.append(f"{key}: {message}, got {_show(value)}")
 
     # -- generic checks ------------------------------------------------------------
     def unknown(self, prefix: str, raw: Mapping, valid) -> None:
@@ -323,7 +321,7 @@ class _Validator:
                 choices = ", ".join(valid)
                 self.problems.append(f"{name}: unknown {what}{extra}; valid {what}s: {choices}")
 
-    def number(self, key, value, *, gt=None, ge=None, le=None, lt=None, integer=False,
+    def number(self, key, value, *, gt=None, ge=None, le=None, integer=False,
                limit=MAX_LENGTH):
         """A finite number in range; returns float/int or None after recording a problem."""
         kind = "an integer" if integer else "a number"
@@ -347,8 +345,6 @@ class _Validator:
             conds.append(f"> {_show(gt)}")
         if ge is not None and not value >= ge:
             conds.append(f">= {_show(ge)}")
-        if lt is not None and not value < lt:
-            conds.append(f"< {_show(lt)}")
         if le is not None and not value <= le:
             conds.append(f"<= {_show(le)}")
         if conds:
@@ -672,11 +668,8 @@ def _ellipsoid_measure(radius: float, aspect: float, dims: int) -> float:
 def _check_kernel(case: Case) -> None:
     """Build the kernel and the orifice profile once, so that the solvers' own checks
     run at load time (cheap: the kernel's parameters and one floor-sized array)."""
-    try:
-        from . import kernels  # noqa: F401
-        from . import orifice
-    except ImportError:   # optional while the solver modules are being written
-        return
+    from . import orifice
+
     try:
         case.kernel
     except CaseError:

@@ -63,6 +63,7 @@ class Progress:
             self.last = pct
 
     def close(self) -> None:
+        """Finish the current stage's bar (no-op for plain lines)."""
         if self.bar is not None:
             self.bar.close()
             self.bar = None
@@ -78,6 +79,7 @@ def _problems(err: CaseError) -> None:
 
 
 def cmd_check(args) -> int:
+    """``spotpde check CASE.toml``: validate the case, print its grid; exit status 0."""
     from .cases import load_case
 
     case = load_case(args.case)
@@ -88,6 +90,7 @@ def cmd_check(args) -> int:
 
 
 def cmd_run(args) -> int:
+    """``spotpde run CASE.toml [-o OUT.nc] [--plot [FIG.png]]``: run, stream to the file."""
     from .cases import load_case
     from .pipeline import run
 
@@ -121,6 +124,7 @@ def cmd_run(args) -> int:
 
 
 def cmd_plot(args) -> int:
+    """``spotpde plot OUT.nc [-o FIG.png]``: the standard figure; 2 for unreadable input."""
     from . import io
     from .plotting import plot_result
 
@@ -136,6 +140,7 @@ def cmd_plot(args) -> int:
 
 
 def cmd_sweep(args) -> int:
+    """``spotpde sweep CASE.toml --set KEY=V1,V2 ...``: 1 when a member failed."""
     from .cases import load_case
     from .sweep import parse_settings, sweep_case
 
@@ -162,6 +167,7 @@ def cmd_sweep(args) -> int:
 
 
 def cmd_compare(args) -> int:
+    """``spotpde compare CASE.toml [--rules LAM ...] [-o FIG.png]``: spot vs kinematic flow."""
     from .comparison import main as compare_main
 
     argv = [args.case, "--rules", *map(str, args.rules)]

@@ -39,7 +39,8 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import scipy.signal
 
-from .grid import Grid
+from ._roundoff import clip_roundoff
+from .grid import DIFFUSIVITY_KEYS, DRIFT_KEYS, Grid, derivative
 from .parameters import Spots
 
 __all__ = [
@@ -54,13 +55,6 @@ __all__ = [
     "DIFFUSIVITY_KEYS",
 ]
 
-#: Drift components by dimension, in the result-variable names of CONTRACT.md.
-DRIFT_KEYS = {2: ("u_x", "u_z"), 3: ("u_x", "u_y", "u_z")}
-#: Independent components of the symmetric diffusivity tensor by dimension.
-DIFFUSIVITY_KEYS = {
-    2: ("D_xx", "D_xz", "D_zz"),
-    3: ("D_xx", "D_yy", "D_zz", "D_xy", "D_xz", "D_yz"),
-}
 _COMPONENTS = {2: ("x", "z"), 3: ("x", "y", "z")}
 #: Sub-samples per cell and axis for kernel quadratures at arbitrary points.
 _SUBSAMPLE = 6
@@ -155,7 +149,7 @@ def _gradient(grid: Grid, f: np.ndarray, comp: str) -> np.ndarray:
     """Second-order derivative along ``comp``: central inside, one-sided at the ends."""
     if f.shape[_axis(grid, comp)] < 3:
         raise ValueError(f"grid: need at least 3 cells along {comp} to differentiate")
-    return np.gradient(f, grid.spacing, axis=_axis(grid, comp), edge_order=2)
+    return derivative(f, grid.spacing, _axis(grid, comp))
 
 
 def divergence(grid: Grid, tensor: Mapping[str, np.ndarray]) -> dict:
@@ -529,6 +523,10 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
                     continue
                 faces = {-1: -_face_value(g, axis, -1), +1: _face_value(g, axis, +1)}
                 fields[f"u_{a}"] += (1.0 - 2.0 * lam) * _wall_layer(grid, kernel, n, faces)
+    # D_p = w^2 * (rho_s D_s) has a non-negative diagonal; the FFT leaves round-off
+    # negatives (~1e-17 of the peak) where it vanishes, which the tracer would reject
+    for a in comps:
+        fields[f"D_{a}{a}"] = clip_roundoff(fields[f"D_{a}{a}"])
     order = DRIFT_KEYS[grid.dims] + DIFFUSIVITY_KEYS[grid.dims]
     return {k: fields[k] for k in order}
 
@@ -631,6 +629,17 @@ def _cross_integrals(grid: Grid, rho_s: np.ndarray, D_s: Mapping, kernel, r1: np
     return out
 
 
+def _two_point_integrals(grid: Grid, rho_s, spots: Spots, kernel, r1, r2,
+                         spot_diffusivity_tensor: Mapping | None):
+    """Checked inputs, then ``(X(r1, r2), X(r1, r1), X(r2, r2))`` of :func:`_cross_integrals`."""
+    rho_s = _check_inputs(grid, rho_s, kernel)
+    p1, p2 = _as_point(grid, r1, "r1"), _as_point(grid, r2, "r2")
+    D_s = spot_diffusivity(grid, spots, spot_diffusivity_tensor)
+    return (_cross_integrals(grid, rho_s, D_s, kernel, p1, p2),
+            _cross_integrals(grid, rho_s, D_s, kernel, p1, p1),
+            _cross_integrals(grid, rho_s, D_s, kernel, p2, p2))
+
+
 def velocity_correlation(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, r1, r2,
                          spot_diffusivity_tensor: Mapping | None = None) -> dict[str, float]:
     """Two-point particle velocity correlation tensor ``C_p(r1, r2)`` (the paper's eq. Cp).
@@ -654,12 +663,8 @@ def velocity_correlation(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, r1
         ``{"C_xx": ..., "C_xz": ..., ...}`` (dimensionless; 0 where a component of ``D_s``
         vanishes).
     """
-    rho_s = _check_inputs(grid, rho_s, kernel)
-    p1, p2 = _as_point(grid, r1, "r1"), _as_point(grid, r2, "r2")
-    D_s = spot_diffusivity(grid, spots, spot_diffusivity_tensor)
-    X = _cross_integrals(grid, rho_s, D_s, kernel, p1, p2)
-    X1 = _cross_integrals(grid, rho_s, D_s, kernel, p1, p1)
-    X2 = _cross_integrals(grid, rho_s, D_s, kernel, p2, p2)
+    X, X1, X2 = _two_point_integrals(grid, rho_s, spots, kernel, r1, r2,
+                                     spot_diffusivity_tensor)
     out = {}
     for key in DIFFUSIVITY_KEYS[grid.dims]:
         a, b = key[2], key[3]
@@ -683,10 +688,6 @@ def pair_diffusivity(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, r1, r2
     Returns:
         ``{"D_xx": ..., "D_xz": ..., ...}`` in d**2 per unit time.
     """
-    rho_s = _check_inputs(grid, rho_s, kernel)
-    p1, p2 = _as_point(grid, r1, "r1"), _as_point(grid, r2, "r2")
-    D_s = spot_diffusivity(grid, spots, spot_diffusivity_tensor)
-    X = _cross_integrals(grid, rho_s, D_s, kernel, p1, p2)
-    X1 = _cross_integrals(grid, rho_s, D_s, kernel, p1, p1)
-    X2 = _cross_integrals(grid, rho_s, D_s, kernel, p2, p2)
+    X, X1, X2 = _two_point_integrals(grid, rho_s, spots, kernel, r1, r2,
+                                     spot_diffusivity_tensor)
     return {k: X1[k] + X2[k] - 2.0 * X[k] for k in DIFFUSIVITY_KEYS[grid.dims]}

@@ -61,13 +61,13 @@ class KinematicComparison:
         flux_deficit: ``1 - integral(v_spot dA) / (V1 Q0)`` per height (whole cross
             section), the particle flux lost because spots near a wall move no particles
             beyond it.
-
-    All per-height numbers except ``flux_deficit`` use the columns farther than the
-    kernel's horizontal reach from the side walls (3D: the plane through the orifice).
         starts: streamline start points ``(m, dims)``.
         streamlines_spot, streamlines_kin: paths ``(n, dims)`` (columns ``x, [y,] z``).
         streamline_shift: per start, ``|x_spot - x_kin|`` at the height ``shift_height``.
         shift_height: where the streamlines are compared, d.
+
+    All per-height numbers except ``flux_deficit`` use the columns farther than the
+    kernel's horizontal reach from the side walls (3D: the plane through the orifice).
     """
 
     rule: float

@@ -19,6 +19,34 @@ import numpy as np
 
 WALLS = ("reflecting", "open")
 
+#: Particle drift components by dimension, in the result-variable names of CONTRACT.md.
+DRIFT_KEYS = {2: ("u_x", "u_z"), 3: ("u_x", "u_y", "u_z")}
+#: Independent components of a symmetric diffusivity tensor by dimension.
+DIFFUSIVITY_KEYS = {
+    2: ("D_xx", "D_xz", "D_zz"),
+    3: ("D_xx", "D_yy", "D_zz", "D_xy", "D_xz", "D_yz"),
+}
+
+
+def derivative(f: np.ndarray, spacing: float, axis: int) -> np.ndarray:
+    """Derivative of a cell-centred field along one array axis, in f's units per d.
+
+    Second-order central differences inside and second-order one-sided differences at
+    the two ends (``numpy.gradient``, ``edge_order=2``); an axis of two cells gets the
+    first-order difference, an axis of one cell a zero derivative.
+
+    Args:
+        f: field on the grid (array order ``(z, x)`` / ``(z, y, x)``).
+        spacing: cell size ``h`` in d.
+        axis: the array axis to differentiate along.
+    """
+    n = f.shape[axis]
+    if n >= 3:
+        return np.gradient(f, spacing, axis=axis, edge_order=2)
+    if n == 2:
+        return np.gradient(f, spacing, axis=axis, edge_order=1)
+    return np.zeros_like(f)
+
 
 @dataclass(frozen=True)
 class Grid:
@@ -61,10 +89,12 @@ class Grid:
     # -- sizes -----------------------------------------------------------------
     @property
     def nx(self) -> int:
+        """Number of cells along x (3D: also along y)."""
         return int(round((self.x_range[1] - self.x_range[0]) / self.spacing))
 
     @property
     def nz(self) -> int:
+        """Number of cells along z."""
         return int(round((self.z_range[1] - self.z_range[0]) / self.spacing))
 
     @property
@@ -79,6 +109,7 @@ class Grid:
 
     @property
     def size(self) -> int:
+        """Total number of cells."""
         return int(np.prod(self.shape))
 
     @property
@@ -109,6 +140,7 @@ class Grid:
 
     @property
     def y_centre(self) -> float:
+        """Middle of the y extent in d (3D; the default y of the orifice and tracer)."""
         return 0.5 * (self.x_range[0] + self.x_range[1])
 
     def coords(self) -> dict[str, np.ndarray]:

@@ -144,14 +144,11 @@ def write_netcdf(ds: xr.Dataset, path: str | os.PathLike, *, complevel: int = 4)
         The absolute path written.
     """
     path = Path(os.path.abspath(path))
-    encoding = {name: {"zlib": True, "complevel": complevel, "shuffle": True}
-                for name in ds.data_vars}
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
+    tmp = _temporary(path)
     try:
-        ds.to_netcdf(tmp, mode="w", format="NETCDF4", engine="netcdf4", encoding=encoding)
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
+        ds.to_netcdf(tmp, mode="w", format="NETCDF4", engine="netcdf4",
+                     encoding=_encoding(ds, complevel))
+        _publish(tmp, path)
     except BaseException:
         try:
             os.unlink(tmp)
@@ -183,9 +180,7 @@ class FrameWriter:
 
         self.path = Path(os.path.abspath(path))
         self.complevel = complevel
-        fd, self.tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp",
-                                        dir=self.path.parent)
-        os.close(fd)
+        self.tmp = _temporary(self.path)
         try:
             nc = netCDF4.Dataset(self.tmp, "w", format="NETCDF4")
             axes = ("t", *grid.axes)
@@ -220,12 +215,9 @@ class FrameWriter:
             The absolute path written.
         """
         self._nc.close()
-        encoding = {name: {"zlib": True, "complevel": self.complevel, "shuffle": True}
-                    for name in ds.data_vars}
         ds.to_netcdf(self.tmp, mode="a", format="NETCDF4", engine="netcdf4",
-                     encoding=encoding)
-        os.chmod(self.tmp, 0o666 & ~_umask())
-        os.replace(self.tmp, self.path)
+                     encoding=_encoding(ds, self.complevel))
+        _publish(self.tmp, self.path)
         return self.path
 
     def abort(self) -> None:
@@ -272,6 +264,25 @@ def read_netcdf(path: str | os.PathLike) -> xr.Dataset:
         raise ValueError(f"{path}: not a spotpde result (missing {', '.join(missing)}; "
                          f"found {', '.join(map(str, ds.data_vars)) or 'no variables'})")
     return ds
+
+
+def _encoding(ds: xr.Dataset, complevel: int) -> dict:
+    """netCDF4 encoding of every data variable: zlib level ``complevel`` with shuffle."""
+    return {name: {"zlib": True, "complevel": complevel, "shuffle": True}
+            for name in ds.data_vars}
+
+
+def _temporary(path: Path) -> str:
+    """An empty temporary file next to ``path`` (hidden, ``.tmp``), for an atomic write."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    return tmp
+
+
+def _publish(tmp: str, path: Path) -> None:
+    """Give ``tmp`` the usual permissions (0666 minus the umask) and rename it onto ``path``."""
+    os.chmod(tmp, 0o666 & ~_umask())
+    os.replace(tmp, path)
 
 
 def _umask() -> int:

@@ -352,10 +352,12 @@ class Uniform(Kernel):
 
     @property
     def radius(self) -> float:
+        """Horizontal radius ``R`` of the disk/sphere in d (vertical: ``R / aspect``)."""
         return self.a_h
 
     @property
     def height(self) -> float:
+        """The influence ``w`` inside the disk/sphere (dimensionless)."""
         return self.amplitude
 
     def __repr__(self):
@@ -432,6 +434,7 @@ class Gaussian(Kernel):
 
     @property
     def sigma(self) -> float:
+        """Horizontal standard deviation in d (vertical: ``sigma / aspect``)."""
         return self.a_h
 
     def _g(self, rho):
@@ -493,6 +496,7 @@ class Exponential(Kernel):
 
     @property
     def length(self) -> float:
+        """Horizontal decay length in d (vertical: ``length / aspect``)."""
         return self.a_h
 
     def _g(self, rho):

@@ -48,7 +48,7 @@ from . import _mc_kernels as K
 from ._version import __version__
 from .errors import CaseError
 from .grid import Grid
-from .parameters import Orifice, Spots
+from .parameters import Orifice, Spots, in_bands
 
 STEPS = ("gaussian", "binary")
 
@@ -235,8 +235,7 @@ def blob(x: float, z: float, width: float, n: int, seed: int = 0) -> np.ndarray:
 
 def layer_mask(z, spacing: float) -> np.ndarray:
     """True for heights in the coloured bands ``[k s, k s + s/2)`` (the layered silo)."""
-    z = np.asarray(z, float)
-    return np.mod(z, spacing) < 0.5 * spacing
+    return in_bands(z, spacing)
 
 
 # ---------------------------------------------------------------------------------------
@@ -538,7 +537,8 @@ def from_case(case, *, particles="lattice", spacing: float = 1.0, **kwargs) -> M
             particles = blob(st.x, st.z, st.width, 2000, seed=kwargs.get("seed", 0))
             kwargs.setdefault("tracked", "all")
         else:
-            raise CaseError(f"montecarlo.particles: unknown {particles!r}")
+            raise CaseError(f"montecarlo.particles: unknown {particles!r}; valid: 'lattice', "
+                            "'random', 'tracer', None or an (N, 2) array of positions")
     if "t_end" not in kwargs and "n_spots" not in kwargs:
         if case.tracer is None:
             raise CaseError("tracer.t_end: give t_end or n_spots for a case without [tracer]")

@@ -63,10 +63,12 @@ class Spots:
 
     @property
     def D_perp(self) -> Coefficient:
+        """Horizontal spot diffusivity ``b v_s`` (per component) in d**2 per unit time."""
         return self.b * self.drift
 
     @property
     def D_par(self) -> Coefficient:
+        """Vertical spot diffusivity ``b_par v_s`` in d**2 per unit time."""
         return self.b_par * self.drift
 
     @property
@@ -91,6 +93,19 @@ class TracerStart:
     width: float = 1.0
     spacing: float = 10.0
     y: float | None = None
+
+
+def in_bands(height, spacing: float) -> np.ndarray:
+    """True for heights in the coloured bands ``[k s, k s + s/2)`` of a layered start.
+
+    Args:
+        height: height(s) above the floor in d.
+        spacing: layer period ``s`` in d (a band and a gap).
+
+    Returns:
+        Boolean array of ``height``'s shape.
+    """
+    return np.mod(np.asarray(height, float), spacing) < 0.5 * spacing
 
 
 @dataclass(frozen=True)

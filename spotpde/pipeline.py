@@ -7,7 +7,10 @@ Stages (each reports its progress)::
                      (tracer.model = "void": void.particle_fields(grid, rho_s, spots, V1))
     kinematic model  kinematic.speed(grid, orifice, b) * V1 * Q0       -> v_kin
     tracer           tracer.solve(grid, fields, P0, t_end, frames, limiter=, cfl=,
-                     diffusion=)                                        (optional)
+                     diffusion=, on_frame=)                             (optional)
+
+With ``run(case, path=...)`` the tracer's ``on_frame`` is an :class:`spotpde.io.FrameWriter`
+that streams every frame to the result file, so ``P`` is never held in memory whole.
 
 The Dataset has the CONTRACT.md variables and global attributes ``V1``, ``V2``, ``rule``,
 ``model``, ``spotpde_version`` and ``case`` (the validated case as TOML).
@@ -25,8 +28,9 @@ import xarray as xr
 from ._version import __version__
 from .cases import Case, load_case
 from .errors import CaseError, NumericalError
+from ._roundoff import clip_roundoff
 from .io import FrameWriter, make_dataset, write_netcdf
-from .parameters import TracerStart
+from .parameters import TracerStart, in_bands
 
 #: The pipeline's stages, in order, as reported to ``progress``.
 STAGES = ("spot density", "particle fields", "kinematic model", "tracer")
@@ -80,9 +84,9 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
 
     spot_density = importlib.import_module("spotpde.spot_density")
     rho_s = spot_density.solve(grid, orifice, spots, progress=_stage(progress, "spot density"))
-    rho_s = _final_frame(np.asarray(rho_s, dtype=float), grid)
+    rho_s = _check_shape(np.asarray(rho_s, dtype=float), grid)
     _check_finite("rho_s", rho_s)
-    rho_s = _clip_roundoff(rho_s)
+    rho_s = clip_roundoff(rho_s)
 
     stage = _stage(progress, "particle fields") or _noop
     stage(0.0)
@@ -156,9 +160,8 @@ def initial_density(grid, start: TracerStart) -> np.ndarray:
     mesh = grid.mesh()
     Z, X = mesh[0], mesh[-1]
     if start.kind == "layers":
-        height = Z - grid.z_range[0]
-        phase = np.mod(height, start.spacing)
-        P = np.broadcast_to((phase < 0.5 * start.spacing).astype(float), grid.shape).copy()
+        bands = in_bands(Z - grid.z_range[0], start.spacing)
+        P = np.broadcast_to(bands.astype(float), grid.shape).copy()
     elif start.kind == "blob":
         r2 = (X - start.x) ** 2 + (Z - start.z) ** 2
         if grid.dims == 3:
@@ -184,25 +187,10 @@ def _noop(fraction: float) -> None:
     return None
 
 
-def _final_frame(rho_s: np.ndarray, grid) -> np.ndarray:
-    """The spot density at the end (a transient solver may return all its frames)."""
-    if rho_s.shape == grid.shape:
-        return rho_s
-    if rho_s.ndim == len(grid.shape) + 1 and rho_s.shape[1:] == grid.shape:
-        return rho_s[-1]
-    raise NumericalError(f"spot density has shape {rho_s.shape}, expected {grid.shape}")
-
-
-def _clip_roundoff(rho_s: np.ndarray, rel: float = 1e-9) -> np.ndarray:
-    """Set round-off negatives of a density (``|rho| <= rel * max|rho|``) to zero.
-
-    A density is non-negative; solvers leave values like ``-1e-15`` where it vanishes,
-    which downstream positivity checks would reject. Larger negatives are left alone.
-    """
-    scale = float(np.max(np.abs(rho_s))) if rho_s.size else 0.0
-    tiny = (rho_s < 0) & (rho_s >= -rel * scale)
-    if np.any(tiny):
-        rho_s = np.where(tiny, 0.0, rho_s)
+def _check_shape(rho_s: np.ndarray, grid) -> np.ndarray:
+    """``rho_s`` itself; a spot density that does not have the grid's shape is a failure."""
+    if rho_s.shape != grid.shape:
+        raise NumericalError(f"spot density has shape {rho_s.shape}, expected {grid.shape}")
     return rho_s
 
 

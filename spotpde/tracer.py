@@ -47,7 +47,7 @@ import scipy.sparse.linalg as spla
 from . import _advection, _diffusion, _timestepping
 from . import _fp_kernels as K
 from .errors import CaseError, NumericalError
-from .grid import Grid
+from .grid import DIFFUSIVITY_KEYS, DRIFT_KEYS, Grid
 
 Fields = Union[Mapping[str, np.ndarray], Callable[[float], Mapping[str, np.ndarray]]]
 
@@ -56,9 +56,7 @@ DIFFUSION_MODES = ("auto", "explicit", "implicit")
 
 def required_fields(dims: int) -> tuple[str, ...]:
     """Names of the coefficient arrays ``solve`` needs in ``dims`` dimensions."""
-    if dims == 2:
-        return ("u_x", "u_z", "D_xx", "D_xz", "D_zz")
-    return ("u_x", "u_y", "u_z", "D_xx", "D_yy", "D_zz", "D_xy", "D_xz", "D_yz")
+    return DRIFT_KEYS[dims] + DIFFUSIVITY_KEYS[dims]
 
 
 @dataclass
@@ -530,7 +528,8 @@ def numerical_diffusion(speed: float, D: float, spacing: float, *, sigma: float 
         (relative error of the mean displacement).
     """
     if not (speed > 0 and D >= 0 and spacing > 0 and sigma > 0):
-        raise CaseError("numerical_diffusion: need speed > 0, D >= 0, spacing > 0, sigma > 0")
+        raise CaseError(f"numerical_diffusion: need speed > 0, D >= 0, spacing > 0, sigma > 0; "
+                        f"got speed={speed!r}, D={D!r}, spacing={spacing!r}, sigma={sigma!r}")
     if t_end is None:
         t_end = 40.0 * sigma / speed
     travel = speed * t_end
@@ -627,7 +626,8 @@ def sde_ensemble(grid: Grid, fields: Fields, starts, t_end: float, n: int, dt: f
         raise CaseError(f"sde_ensemble.starts: need {dims} columns (array order "
                         f"{grid.axes}), got shape {starts.shape}")
     if not (n >= 1 and dt > 0 and t_end >= 0):
-        raise CaseError("sde_ensemble: need n >= 1, dt > 0, t_end >= 0")
+        raise CaseError(f"sde_ensemble: need n >= 1, dt > 0, t_end >= 0; got n={n!r}, "
+                        f"dt={dt!r}, t_end={t_end!r}")
     rng = np.random.default_rng(seed)
     pos = starts[np.arange(n) % len(starts)].copy()
     alive = np.ones(n, dtype=bool)

@@ -39,7 +39,7 @@ import numba
 import numpy as np
 from scipy.linalg import solve_banded
 
-from .grid import Grid
+from .grid import Grid, derivative
 from .parameters import Spots
 
 #: Staggered ("triangular-like") lattice: a void steps up one row and left or right by
@@ -136,10 +136,7 @@ def geometric_propagator(x, z, x0, z0: float, b: float, dims: int = 2) -> np.nda
     Returns:
         Density in 1/d**(dims-1).
     """
-    z = np.asarray(z, dtype=float)
-    if np.any(z <= 0) or np.any(z >= z0):
-        raise ValueError("geometric_propagator needs 0 < z < z0")
-    return _gaussian_product(x, x0, z, z0, b, dims, bridge_moments)
+    return _gaussian_product(x, x0, z, z0, b, dims, bridge_moments, "geometric_propagator")
 
 
 def printed_propagator(x, z, x0, z0: float, b: float, dims: int = 2) -> np.ndarray:
@@ -158,10 +155,7 @@ def printed_propagator(x, z, x0, z0: float, b: float, dims: int = 2) -> np.ndarr
     Returns:
         Density in 1/d**(dims-1).
     """
-    z = np.asarray(z, dtype=float)
-    if np.any(z <= 0) or np.any(z >= z0):
-        raise ValueError("printed_propagator needs 0 < z < z0")
-    return _gaussian_product(x, x0, z, z0, b, dims, printed_moments)
+    return _gaussian_product(x, x0, z, z0, b, dims, printed_moments, "printed_propagator")
 
 
 def _radius2(x, dims):
@@ -173,7 +167,12 @@ def _radius2(x, dims):
     raise ValueError(f"dims must be 2 or 3, got {dims!r}")
 
 
-def _gaussian_product(x, x0, z, z0, b, dims, moments):
+def _gaussian_product(x, x0, z, z0, b, dims, moments, name):
+    """Product over horizontal components of Gaussians with ``moments(z, x0, z0, b)``."""
+    z = np.asarray(z, dtype=float)
+    if np.any(z <= 0) or np.any(z >= z0):
+        raise ValueError(f"{name} needs 0 < z < z0, got z in [{z.min():g}, {z.max():g}] "
+                         f"and z0 = {z0:g}")
     if dims == 2:
         comps = [(x, x0)]
     elif dims == 3:
@@ -347,25 +346,16 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, V1: float,
     lam = float(rule)
     Fh = rho * D_perp  # horizontal components of D_s rho_s
     Fz = rho * D_par
-
-    def d(f, axis):
-        n = f.shape[axis]
-        if n >= 3:
-            return np.gradient(f, h, axis=axis, edge_order=2)
-        if n == 2:
-            return np.gradient(f, h, axis=axis, edge_order=1)
-        return np.zeros_like(f)
-
     ax = {a: i for i, a in enumerate(grid.axes)}
     out = {
-        "u_x": 2.0 * lam * V1 * d(Fh, ax["x"]),
-        "u_z": -V1 * (rho * v_s - 2.0 * lam * d(Fz, ax["z"])),
+        "u_x": 2.0 * lam * V1 * derivative(Fh, h, ax["x"]),
+        "u_z": -V1 * (rho * v_s - 2.0 * lam * derivative(Fz, h, ax["z"])),
         "D_xx": V1 * Fh,
         "D_xz": np.zeros(grid.shape),
         "D_zz": V1 * Fz,
     }
     if grid.dims == 3:
-        out["u_y"] = 2.0 * lam * V1 * d(Fh, ax["y"])
+        out["u_y"] = 2.0 * lam * V1 * derivative(Fh, h, ax["y"])
         out["D_yy"] = V1 * Fh.copy()
         out["D_xy"] = np.zeros(grid.shape)
         out["D_yz"] = np.zeros(grid.shape)

@@ -144,7 +144,6 @@ def test_kernel_height_gives_the_uniform_volume():
     case = load_case(small() | {"kernel": {"shape": "uniform", "size": 2.5,
                                            "height": 0.0024}})
     assert case.kernel_spec["volume"] == pytest.approx(0.0024 * math.pi * 6.25)
-    pytest.importorskip("spotpde.kernels")
     assert case.kernel.V1 == pytest.approx(0.0024 * math.pi * 6.25, rel=1e-9)
 
 

@@ -293,9 +293,6 @@ def test_sigint_stops_a_run_with_130_and_no_file(tmp_path):
 
 
 def test_real_run_of_a_tiny_case(small_case, capsys):
-    for name in ("spotpde.spot_density", "spotpde.coefficients", "spotpde.kinematic",
-                 "spotpde.tracer"):
-        pytest.importorskip(name)
     assert cli.main(["run", str(small_case), "--plot"]) == 0
     ds = sio.read_netcdf(small_case.parent / "small.nc")
     assert ds.P.dims == ("t", "z", "x") and ds.sizes["t"] == 3

@@ -12,12 +12,11 @@ import math
 import numpy as np
 import pytest
 
+from spotpde import coefficients, kernels, spot_density, void
 from spotpde import montecarlo as mc
 from spotpde.errors import CaseError
 from spotpde.grid import Grid
 from spotpde.parameters import Orifice, Spots
-
-kernels = pytest.importorskip("spotpde.kernels")
 
 NSIG = 4.0
 B = 1.3
@@ -269,7 +268,6 @@ def test_converging_silo_mean_velocity_matches_continuum(rule):
 # void limit: one particle per spot, rule 1 -> Brownian bridge to the orifice
 # ---------------------------------------------------------------------------------------
 def test_void_limit_geometric_propagator_is_brownian_bridge():
-    void = pytest.importorskip("spotpde.void")
     g = Grid(2, (-30.0, 30.0), (0.0, 50.0), 1.0)
     k = kernels.Uniform(radius=0.5, height=1.0, dims=2)  # w = 1 over one particle area
     levels = np.arange(0.25, 50.0, 0.5)
@@ -327,8 +325,6 @@ def test_wall_layer_of_rule_one_matches_continuum_coefficients():
     its excess near the wall shrinks like sqrt(Delta) (docs/montecarlo.md), hence the
     10 % allowance on top of 4 standard errors at Delta = 1/16.
     """
-    coefficients = pytest.importorskip("spotpde.coefficients")
-    spot_density = pytest.importorskip("spotpde.spot_density")
     k = kernels.Gaussian(sigma=1.0, volume=1.0, dims=2)
     orifice = Orifice(x=0.0, width=4.0, profile="uniform", rate=1.0)
     spots = Spots(drift=1.0, b=B)

@@ -15,11 +15,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from spotpde import void
+from spotpde import tracer, void
 from spotpde.grid import Grid
 from spotpde.parameters import Spots
-
-tracer = pytest.importorskip("spotpde.tracer")
 
 B, X0, Z0, SIGMA = 1.3, 4.0, 20.0, 0.75
 

@@ -1,0 +1,25 @@
+"""Round-off negatives of quantities that are non-negative by construction."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def clip_roundoff(a: np.ndarray, rel: float = 1e-9) -> np.ndarray:
+    """Set round-off negatives (``-rel * max|a| <= a < 0``) of a non-negative field to zero.
+
+    Densities and the diagonal of a diffusivity tensor are non-negative by construction,
+    but solvers and FFT convolutions leave values like ``-1e-17 * max`` where they vanish,
+    which positivity checks downstream (the tracer's) rightly reject. Larger negatives
+    are a real defect and are left alone for those checks to catch.
+
+    Args:
+        a: the field.
+        rel: the largest negative treated as round-off, relative to ``max|a|``.
+
+    Returns:
+        ``a`` with its round-off negatives zeroed (``a`` itself when it has none).
+    """
+    scale = float(np.max(np.abs(a))) if a.size else 0.0
+    tiny = (a < 0) & (a >= -rel * scale)
+    return np.where(tiny, 0.0, a) if np.any(tiny) else a
