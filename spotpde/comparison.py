@@ -344,8 +344,8 @@ def plot_comparison(comparisons: Mapping[float, KinematicComparison], path=None)
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m spotpde.comparison CASE.toml [--rules 0.5 1] [-o FIG.png]``.
 
-    Prints the per-rule summary (medians over heights) and writes the comparison figure.
-    Exit status 0, or 2 for an invalid case.
+    Prints the per-rule summary (medians over heights) and, with ``-o``, writes the
+    comparison figure. Exit status 0, or 2 for an invalid case.
     """
     import argparse
     import sys

@@ -72,8 +72,11 @@ def variable_attrs(name: str, dims: int) -> dict[str, str]:
         return {"units": "1", "long_name": "tracer probability inside the domain"}
     if name == "outflow":
         return {"units": "1",
-                "long_name": "tracer probability that has left through the orifice"}
-    raise KeyError(f"{name!r} is not a spotpde result variable")
+                "long_name": "tracer probability that has left through the orifice "
+                             "(and through open side walls, where the walls are open)"}
+    raise KeyError(f"{name!r} is not a spotpde result variable; valid: rho_s, v_kin, "
+                   "u_x, u_y, u_z, D_xx, D_yy, D_zz, D_xy, D_xz, D_yz, P, P_height, mass, "
+                   "outflow")
 
 
 def make_dataset(
@@ -198,12 +201,10 @@ class FrameWriter:
             self.abort()
             raise
         self._nc = nc
-        self.frames_written = 0
 
     def __call__(self, index: int, time: float, P: np.ndarray) -> None:
         """Write frame ``index`` (the tracer's ``on_frame`` callback)."""
         self._nc["P"][index] = P
-        self.frames_written += 1
 
     def finish(self, ds: xr.Dataset) -> Path:
         """Add every other variable and the global attributes, then rename onto ``path``.

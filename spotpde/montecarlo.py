@@ -160,6 +160,8 @@ def lattice(grid: Grid, spacing: float = 1.0, kind: str = "triangular",
     Returns:
         ``(N, 2)`` array of ``(x, z)`` in d.
     """
+    if kind not in ("triangular", "square"):
+        raise ValueError(f"lattice kind: must be one of 'triangular', 'square', got {kind!r}")
     x0, x1, z0, z1 = _region(grid, region)
     dz = spacing * (math.sqrt(3.0) / 2.0 if kind == "triangular" else 1.0)
     rows = np.arange(z0 + 0.5 * dz, z1, dz)
