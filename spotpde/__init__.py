@@ -20,7 +20,8 @@ from .errors import CaseError, NumericalError
 
 _SUBMODULES = (
     "grid", "parameters", "kernels", "convolution", "orifice", "spot_density",
-    "kinematic", "coefficients", "comparison", "tracer", "void", "cases", "io", "pipeline",
+    "kinematic", "coefficients", "comparison", "tracer", "void", "layers", "cases", "io",
+    "pipeline",
     "plotting", "montecarlo", "sweep", "cli",
 )
 _FUNCTIONS = {
