@@ -174,11 +174,11 @@ class FrameWriter:
     Args:
         path: the result file to write (its directory must exist).
         grid: :class:`spotpde.grid.Grid` of the run.
-        times: the frame times in t.
+        frames: number of tracer frames.
         complevel: zlib compression level 1..9.
     """
 
-    def __init__(self, path: str | os.PathLike, grid, times, *, complevel: int = 4):
+    def __init__(self, path: str | os.PathLike, grid, frames: int, *, complevel: int = 4):
         import netCDF4
 
         self.path = Path(os.path.abspath(path))
@@ -187,13 +187,8 @@ class FrameWriter:
         try:
             nc = netCDF4.Dataset(self.tmp, "w", format="NETCDF4")
             axes = ("t", *grid.axes)
-            coords = {"t": np.asarray(times, dtype=float), **grid.coords()}
-            for axis in axes:
-                nc.createDimension(axis, len(coords[axis]))
-                var = nc.createVariable(axis, "f8", (axis,))
-                var[:] = coords[axis]
-                units, long_name = COORDS[axis]
-                var.setncatts({"units": units, "long_name": long_name})
+            for axis, n in zip(axes, (frames, *grid.shape)):
+                nc.createDimension(axis, n)   # coordinates come with the Dataset in finish()
             P = nc.createVariable("P", "f8", axes, zlib=True, complevel=complevel,
                                   shuffle=True, chunksizes=(1, *grid.shape))
             P.setncatts(variable_attrs("P", grid.dims))
@@ -210,7 +205,8 @@ class FrameWriter:
         """Add every other variable and the global attributes, then rename onto ``path``.
 
         Args:
-            ds: the result Dataset without ``P`` (its ``t`` coordinate as the frames').
+            ds: the result Dataset without ``P``, with the coordinates (``t`` the frame
+                times) that :func:`make_dataset` gives it.
 
         Returns:
             The absolute path written.

@@ -69,8 +69,7 @@ def run(case: Case | str, progress: Progress | None = None, *,
             ds = _run(case, progress)
             write_netcdf(ds, path)
             return ds
-        times = np.linspace(0.0, case.tracer.t_end, case.tracer.frames)
-        with FrameWriter(path, case.grid, times) as writer:
+        with FrameWriter(path, case.grid, case.tracer.frames) as writer:
             written = writer.finish(_run(case, progress, on_frame=writer))
         return xr.open_dataset(written, engine="netcdf4", chunks={})  # P: one frame a chunk
     except CaseError as err:

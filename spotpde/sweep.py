@@ -283,17 +283,13 @@ def combine(case: Case, settings: Mapping[str, Sequence], results: list) -> xr.D
         raise NumericalError("every sweep member failed: " + "; ".join(
             f"{_label(settings, v)}: {msg}" for v, msg in failed))
     template = good[0]
-    numbers = {name: [] for name in MEMBER_NUMBERS}
-    parts = []
-    for values, r in results:
-        ds = r if isinstance(r, xr.Dataset) else xr.full_like(template, np.nan)
-        for name in numbers:
-            numbers[name].append(float(ds.attrs[name]) if isinstance(r, xr.Dataset) else np.nan)
-        parts.append(ds)
+    numbers = {name: [float(r.attrs[name]) if isinstance(r, xr.Dataset) else np.nan
+                      for _, r in results] for name in MEMBER_NUMBERS}
+    parts = [r if isinstance(r, xr.Dataset) else xr.full_like(template, np.nan)
+             for _, r in results]
     shape = tuple(len(v) for v in settings.values())
     stacked = xr.concat(parts, dim="member", join="outer", combine_attrs="drop")
     index = [np.asarray(v) for v in settings.values()]
-    grid_shape = {d: stacked.sizes[d] for d in stacked.dims if d != "member"}
     data_vars = {}
     for name, var in stacked.data_vars.items():
         arr = var.values.reshape(shape + var.shape[1:])
@@ -310,8 +306,9 @@ def combine(case: Case, settings: Mapping[str, Sequence], results: list) -> xr.D
                             "flag_meanings": "finished failed"})
     coords = {k: (k, idx, {"units": _units_of(k, dims), "long_name": f"swept case key {k}"})
               for k, idx in zip(settings, index)}
-    for d in grid_shape:
-        coords[d] = (d, stacked[d].values, template[d].attrs)
+    for d in stacked.dims:
+        if d != "member":
+            coords[d] = (d, stacked[d].values, template[d].attrs)
     out = xr.Dataset(data_vars, coords=coords)
     out.attrs.update({
         "spotpde_version": __version__,
