@@ -174,13 +174,13 @@ class _Operator:
             zero = np.zeros(shape)
             coef = {off: A for off, A in self.terms}
             if implicit:
-                self.Axx = self.Azz = self.Cp = self.Cm = zero
+                self.Axx = self.Azz = self.C = zero
                 self.k_cross = False
             else:
                 self.Axx = np.ascontiguousarray(coef[(0, 1)])
                 self.Azz = np.ascontiguousarray(coef[(1, 0)])
-                self.Cp = np.ascontiguousarray(coef.get((1, 1), zero))
-                self.Cm = np.ascontiguousarray(coef.get((1, -1), zero))
+                # signed D_xz: the kernel forms the exchange coefficients max(+-D_xz, 0)
+                self.C = np.ascontiguousarray(coef.get((1, 1), zero) - coef.get((1, -1), zero))
                 self.k_cross = self.has_cross
         self._L = None
         self._Bz = None
@@ -218,11 +218,11 @@ class _Workspace:
         self.tiny = 1e-100 * p_scale
         self.R = np.empty(shape)
         fshape = (shape[0] + 1,) + shape[1:]
-        self.Fz = np.empty(fshape)
         self.Fz_acc = np.zeros(fshape)
         if grid.dims == 2:
-            self.Gp, self.Gm = K.empty_like_faces(shape)
+            self.Fz_edge = np.empty((2,) + shape[1:])     # floor and top face fluxes
         else:
+            self.Fz = np.empty(fshape)
             self.Fy = np.empty((shape[0], shape[1] + 1, shape[2]))
         self.stage = [np.empty(shape), np.empty(shape)]
 
@@ -236,9 +236,11 @@ def _rhs(op: _Operator, P: np.ndarray, ws: _Workspace, w_acc: float) -> tuple[fl
     h = op.h
     f = op.faces
     if op.dims == 2:
-        K.rhs_2d_kernel(op.limiter)(P, f["x"], f["z"], op.Axx, op.Azz, op.Cp, op.Cm, op.k_cross,
-                                    op.eps, h, ws.R, ws.Fz, ws.Fz_acc, w_acc, ws.Gp, ws.Gm)
+        K.rhs_2d_kernel(op.limiter)(P, f["x"], f["z"], op.Axx, op.Azz, op.C, op.k_cross,
+                                    op.eps, h, ws.R, ws.Fz_edge, ws.Fz_acc, w_acc)
         side = np.dot(f["x"][:, -1], P[:, -1]) - np.dot(f["x"][:, 0], P[:, 0])
+        floor = -ws.Fz_edge[0].sum()
+        top = ws.Fz_edge[1].sum()
         hm = h
     else:
         K.advect_3d_kernel(op.limiter)(P, f["x"], f["y"], f["z"], op.eps, h, ws.R, ws.Fz, ws.Fy,
@@ -248,9 +250,9 @@ def _rhs(op: _Operator, P: np.ndarray, ws: _Workspace, w_acc: float) -> tuple[fl
             ws.Fz_acc += w_acc * (op.Bz @ P.ravel()).reshape(ws.Fz.shape)
         side = (np.vdot(f["x"][:, :, -1], P[:, :, -1]) - np.vdot(f["x"][:, :, 0], P[:, :, 0])
                 + np.vdot(f["y"][:, -1, :], P[:, -1, :]) - np.vdot(f["y"][:, 0, :], P[:, 0, :]))
+        floor = -ws.Fz[0].sum()
+        top = ws.Fz[-1].sum()
         hm = h * h
-    floor = -ws.Fz[0].sum()
-    top = ws.Fz[-1].sum()
     return hm * floor, hm * side, hm * top
 
 
