@@ -406,13 +406,25 @@ def rhs_2d_kernel(limiter: int):
     return rhs_2d
 
 
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+def _divergence_row_3d(Fx, Fys, Fyn, Fzb, Fzt, out, ih):
+    """``out = -(x, y and z flux differences) / h`` for one row of cells."""
+    for i in range(out.shape[0]):
+        out[i] = -((Fx[i + 1] - Fx[i]) + (Fyn[i] - Fys[i]) + (Fzt[i] - Fzb[i])) * ih
+
+
 @functools.lru_cache(maxsize=None)
 def advect_3d_kernel(limiter: int):
-    """The 3D advection kernel specialised for one reconstruction (see rhs_2d_kernel)."""
+    """The 3D advection kernel specialised for one reconstruction (see rhs_2d_kernel).
+
+    Built from the same row functions as the 2D kernel, applied along z, y and x lines
+    of cells (x innermost, contiguous); the diffusion tensor is added separately.
+    """
+    r = _reach(limiter)
 
     @njit(parallel=True, cache=True, fastmath=FASTMATH, error_model="numpy")
-    def advect_3d(P, uxf, uyf, uzf, eps, h, out, Fz, Fy, Fz_acc, w_acc):
-        """-div(u P) in 3D with limited upwind face values (diffusion is added separately).
+    def advect_3d(P, uxf, uyf, uzf, eps, h, out, Fz, Fz_acc, w_acc):
+        """-div(u P) in 3D with limited upwind face values.
 
         Args:
             P: (nz, ny, nx) density.
@@ -420,70 +432,38 @@ def advect_3d_kernel(limiter: int):
             eps: WENO scale ``1 / P_scale**2``; h: spacing (``limiter`` is a compile-time
                 constant of this specialisation).
             out: (nz, ny, nx) result.
-            Fz, Fy: work arrays of the face-velocity shapes (z fluxes written).
+            Fz: (nz+1, ny, nx) vertical face fluxes, written.
             Fz_acc: accumulator, ``Fz_acc += w_acc * Fz`` (advective part).
         """
         nz, ny, nx = P.shape
         ih = 1.0 / h
+        zero_xz = np.zeros((nz, nx))
+        zero_yx = np.zeros((ny, nx))
+        zero = np.zeros(nx)
         for k in prange(nz + 1):
-            k3 = max(k - 3, 0)
-            k2 = max(k - 2, 0)
-            kp1 = min(k + 1, nz - 1)
-            kp2 = min(k + 2, nz - 1)
             for j in range(ny):
-                for i in range(nx):
-                    u = uzf[k, j, i]
-                    if k == 0:
-                        F = u * P[0, j, i]
-                    elif k == nz:
-                        F = u * P[nz - 1, j, i]
-                    elif u > 0.0:
-                        F = u * recon(P[k3, j, i], P[k2, j, i], P[k - 1, j, i], P[k, j, i],
-                                      P[kp1, j, i], k >= 3, k >= 2, k + 1 <= nz - 1, limiter, eps)
-                    else:
-                        F = u * recon(P[kp2, j, i], P[kp1, j, i], P[k, j, i], P[k - 1, j, i],
-                                      P[k2, j, i], k + 2 <= nz - 1, k + 1 <= nz - 1, k >= 2,
-                                      limiter, eps)
-                    Fz[k, j, i] = F
-                    Fz_acc[k, j, i] += w_acc * F
+                if k >= r and k <= nz - r:
+                    zface_row(P[k - 3, j], P[k - 2, j], P[k - 1, j], P[k, j], P[k + 1, j],
+                              P[min(k + 2, nz - 1), j], uzf[k, j], zero, zero, Fz[k, j], ih,
+                              eps, limiter)
+                else:
+                    zface_row_edge(P[:, j, :], uzf[:, j, :], zero_xz, k, Fz[k, j], ih, eps,
+                                   limiter)
+                _accumulate_row(Fz[k, j], Fz_acc[k, j], w_acc)
         for k in prange(nz):
+            Fy = np.empty((ny + 1, nx))     # y faces of this plane
+            Fx = np.empty(nx + 1)
+            Pk = P[k]
             for j in range(ny + 1):
-                j3 = max(j - 3, 0)
-                j2 = max(j - 2, 0)
-                jp1 = min(j + 1, ny - 1)
-                jp2 = min(j + 2, ny - 1)
-                for i in range(nx):
-                    u = uyf[k, j, i]
-                    if j == 0:
-                        F = u * P[k, 0, i]
-                    elif j == ny:
-                        F = u * P[k, ny - 1, i]
-                    elif u > 0.0:
-                        F = u * recon(P[k, j3, i], P[k, j2, i], P[k, j - 1, i], P[k, j, i],
-                                      P[k, jp1, i], j >= 3, j >= 2, j + 1 <= ny - 1, limiter, eps)
-                    else:
-                        F = u * recon(P[k, jp2, i], P[k, jp1, i], P[k, j, i], P[k, j - 1, i],
-                                      P[k, j2, i], j + 2 <= ny - 1, j + 1 <= ny - 1, j >= 2,
-                                      limiter, eps)
-                    Fy[k, j, i] = F
-        for k in prange(nz):
+                if j >= r and j <= ny - r:
+                    zface_row(Pk[j - 3], Pk[j - 2], Pk[j - 1], Pk[j], Pk[j + 1],
+                              Pk[min(j + 2, ny - 1)], uyf[k, j], zero, zero, Fy[j], ih, eps,
+                              limiter)
+                else:
+                    zface_row_edge(Pk, uyf[k], zero_yx, j, Fy[j], ih, eps, limiter)
             for j in range(ny):
-                Fl = uxf[k, j, 0] * P[k, j, 0]
-                for i in range(nx):
-                    u = uxf[k, j, i + 1]
-                    if i == nx - 1:
-                        Fr = u * P[k, j, i]
-                    elif u > 0.0:
-                        Fr = u * recon(P[k, j, max(i - 2, 0)], P[k, j, max(i - 1, 0)], P[k, j, i],
-                                       P[k, j, i + 1], P[k, j, min(i + 2, nx - 1)], i >= 2, i >= 1,
-                                       i + 2 <= nx - 1, limiter, eps)
-                    else:
-                        Fr = u * recon(P[k, j, min(i + 3, nx - 1)], P[k, j, min(i + 2, nx - 1)],
-                                       P[k, j, i + 1], P[k, j, i], P[k, j, max(i - 1, 0)],
-                                       i + 3 <= nx - 1, i + 2 <= nx - 1, i >= 1, limiter, eps)
-                    out[k, j, i] = -((Fr - Fl) + (Fy[k, j + 1, i] - Fy[k, j, i])
-                                     + (Fz[k + 1, j, i] - Fz[k, j, i])) * ih
-                    Fl = Fr
+                xface_row(Pk[j], uxf[k, j], zero, Fx, ih, eps, limiter)
+                _divergence_row_3d(Fx, Fy[j], Fy[j + 1], Fz[k, j], Fz[k + 1, j], out[k, j], ih)
 
     return advect_3d
 

@@ -223,7 +223,6 @@ class _Workspace:
             self.Fz_edge = np.empty((2,) + shape[1:])     # floor and top face fluxes
         else:
             self.Fz = np.empty(fshape)
-            self.Fy = np.empty((shape[0], shape[1] + 1, shape[2]))
         self.stage = [np.empty(shape), np.empty(shape)]
 
 
@@ -243,7 +242,7 @@ def _rhs(op: _Operator, P: np.ndarray, ws: _Workspace, w_acc: float) -> tuple[fl
         top = ws.Fz_edge[1].sum()
         hm = h
     else:
-        K.advect_3d_kernel(op.limiter)(P, f["x"], f["y"], f["z"], op.eps, h, ws.R, ws.Fz, ws.Fy,
+        K.advect_3d_kernel(op.limiter)(P, f["x"], f["y"], f["z"], op.eps, h, ws.R, ws.Fz,
                                        ws.Fz_acc, w_acc)
         if not op.implicit and len(op.terms):
             ws.R += (op.L @ P.ravel()).reshape(P.shape)

@@ -8,7 +8,7 @@ Jiang & Shu / Borges et al. in its textbook form, and the diffusion tensor from 
 independent sparse assembly in ``spotpde._diffusion``) and requires agreement to
 round-off, for every reconstruction, on grids that exercise the boundary fallbacks
 (fewer cells than the stencil), several chunks, both flow directions, and 1 or 2
-threads.
+threads; in 2D and in 3D (where the same row functions run along z, y and x lines).
 """
 
 from __future__ import annotations
@@ -69,52 +69,58 @@ def face_value(name, line, up, down, iscale2):
 
 def reference(name, op, P, w):
     """(dP/dt, floor and top fluxes, increment of the flux accumulator) the slow way."""
-    nz, nx = P.shape
-    h = op.h
-    ux, uz = op.faces["x"], op.faces["z"]
-    Fz = np.zeros((nz + 1, nx))
-    Fx = np.zeros((nz, nx + 1))
-    for i in range(nx):
-        col = P[:, i]
-        Fz[0, i] = uz[0, i] * P[0, i]
-        Fz[nz, i] = uz[nz, i] * P[nz - 1, i]
-        for k in range(1, nz):
-            up, down = (k - 1, k) if uz[k, i] > 0 else (k, k - 1)
-            Fz[k, i] = uz[k, i] * face_value(name, col, up, down, op.eps)
-    for k in range(nz):
-        row = P[k]
-        Fx[k, 0] = ux[k, 0] * P[k, 0]
-        Fx[k, nx] = ux[k, nx] * P[k, nx - 1]
-        for i in range(1, nx):
-            up, down = (i - 1, i) if ux[k, i] > 0 else (i, i - 1)
-            Fx[k, i] = ux[k, i] * face_value(name, row, up, down, op.eps)
-    adv = -(np.diff(Fx, axis=1) + np.diff(Fz, axis=0)) / h
+    names = ("z", "x") if P.ndim == 2 else ("z", "y", "x")
+    adv = np.zeros(P.shape)
+    for axis, key in enumerate(names):
+        u = np.moveaxis(op.faces[key], axis, -1)
+        lines = np.moveaxis(P, axis, -1)
+        F = np.zeros(u.shape)
+        n = lines.shape[-1]
+        for idx in np.ndindex(lines.shape[:-1]):
+            line, ul = lines[idx], u[idx]
+            F[idx + (0,)] = ul[0] * line[0]
+            F[idx + (n,)] = ul[n] * line[n - 1]
+            for f in range(1, n):
+                up, down = (f - 1, f) if ul[f] > 0 else (f, f - 1)
+                F[idx + (f,)] = ul[f] * face_value(name, line, up, down, op.eps)
+        F = np.moveaxis(F, -1, axis)
+        adv -= np.diff(F, axis=axis) / op.h
+        if key == "z":
+            Fz = F
     diff = (op.L @ P.ravel()).reshape(P.shape)
     Fz_diff = (op.Bz @ P.ravel()).reshape(Fz.shape)
-    return adv + diff, Fz[[0, nz]], w * (Fz + Fz_diff)
+    return adv + diff, Fz[[0, -1]], w * (Fz + Fz_diff)
 
 
-def random_problem(nz, nx, seed, cross):
-    grid = Grid(2, (0.0, nx * 0.25), (0.0, nz * 0.25), 0.25, walls="open")
+def random_problem(dims, nz, nx, seed, cross):
+    """Random face velocities of both signs, a diagonally dominant tensor (with or without
+    cross terms) and a density with monotone stretches, extrema and tiny values."""
+    grid = Grid(dims, (0.0, nx * 0.25), (0.0, nz * 0.25), 0.25, walls="open")
     rng = np.random.default_rng(seed)
-    D = rng.uniform(0.5, 1.0, grid.shape)
-    fields = {"u_x": rng.normal(0.0, 1.0, grid.shape), "u_z": rng.normal(-0.3, 1.0, grid.shape),
-              "D_xx": D, "D_zz": rng.uniform(0.5, 1.0, grid.shape),
-              "D_xz": (0.4 * rng.uniform(-1, 1, grid.shape) * D) if cross else np.zeros(grid.shape)}
-    # smooth plus rough: monotone stretches, extrema and tiny values
-    Z, X = grid.mesh()
-    P = (np.exp(-((X - nx * 0.12) ** 2 + (Z - nz * 0.1) ** 2) / 2.0)
-         + 0.3 * rng.random(grid.shape) ** 4)
+    axes = "xz" if dims == 2 else "xyz"
+    fields = {f"u_{a}": rng.normal(-0.3 if a == "z" else 0.0, 1.0, grid.shape) for a in axes}
+    for i, a in enumerate(axes):
+        fields[f"D_{a}{a}"] = rng.uniform(0.5, 1.0, grid.shape)
+        for b in axes[i + 1:]:
+            # |cross| <= 0.2 per pair: diagonally dominant in 2D and 3D
+            c = 0.2 * rng.uniform(-1, 1, grid.shape)
+            fields[f"D_{a}{b}"] = c if cross else np.zeros(grid.shape)
+    centre = np.array(grid.shape) * 0.25 * 0.4
+    mesh = np.meshgrid(*[(np.arange(n) + 0.5) * 0.25 for n in grid.shape], indexing="ij")
+    r2 = sum((m - c) ** 2 for m, c in zip(mesh, centre))
+    P = np.exp(-r2 / 2.0) + 0.3 * rng.random(grid.shape) ** 4
     return grid, tracer._check_fields(grid, fields, "fields"), np.ascontiguousarray(P)
 
 
 @pytest.mark.parametrize("name", list(LIMITERS))
-@pytest.mark.parametrize("nz,nx", [(3, 2), (5, 6), (37, 11), (40, 33)])
+@pytest.mark.parametrize("dims,nz,nx", [(2, 3, 2), (2, 5, 6), (2, 37, 11), (2, 40, 33),
+                                        (3, 4, 2), (3, 9, 7)])
 @pytest.mark.parametrize("cross", [True, False])
-def test_rhs_kernel_matches_reference(name, nz, nx, cross):
-    grid, f, P = random_problem(nz, nx, seed=nz * 100 + nx, cross=cross)
-    op = tracer._Operator(grid, f, LIMITERS[name].code, np.ones(nx, bool), implicit=False)
-    assert op.k_cross == cross
+def test_rhs_kernel_matches_reference(name, dims, nz, nx, cross):
+    grid, f, P = random_problem(dims, nz, nx, seed=dims * 10000 + nz * 100 + nx, cross=cross)
+    outlet = np.ones(grid.shape[1:], bool)
+    op = tracer._Operator(grid, f, LIMITERS[name].code, outlet, implicit=False)
+    assert op.has_cross == cross
     want_R, want_edge, want_acc = reference(name, op, P, w=0.7)
     scale = np.abs(want_R).max()
     for threads in (1, 2):
@@ -127,9 +133,11 @@ def test_rhs_kernel_matches_reference(name, nz, nx, cross):
         finally:
             numba.set_num_threads(saved)
         np.testing.assert_allclose(ws.R, want_R, rtol=0, atol=1e-12 * scale)
-        np.testing.assert_allclose(ws.Fz_edge, want_edge, rtol=0, atol=1e-12 * scale)
+        edge = ws.Fz_edge if dims == 2 else ws.Fz[[0, -1]]
+        np.testing.assert_allclose(edge, want_edge, rtol=0, atol=1e-12 * scale)
         np.testing.assert_allclose(ws.Fz_acc - 1.0, want_acc, rtol=0, atol=1e-12 * scale)
         floor, side, top = rates
-        assert floor == pytest.approx(-want_edge[0].sum() * grid.spacing, abs=1e-12 * scale)
-        assert top == pytest.approx(want_edge[1].sum() * grid.spacing, abs=1e-12 * scale)
+        area = grid.spacing ** (dims - 1)
+        assert floor == pytest.approx(-want_edge[0].sum() * area, abs=1e-12 * scale)
+        assert top == pytest.approx(want_edge[1].sum() * area, abs=1e-12 * scale)
 
