@@ -21,9 +21,11 @@ are written as selects, ``face_value``), no Python division checks
 alone made the x sweep 10 times slower). Rows are processed in chunks of
 :data:`ROWS_PER_CHUNK`; a chunk keeps its vertical face fluxes and corner exchanges in
 chunk-local buffers, which stay in cache, instead of whole-grid arrays (each chunk
-recomputes the face row it shares with the chunk above and does not accumulate it).
-Measured in ``benchmarks/tracer.py``: 2-2.5 times the throughput of the earlier
-whole-grid two-pass kernel.
+recomputes the face row it shares with the chunk above and does not accumulate it),
+and the divergence is combined into the Runge-Kutta stage in the same pass. Measured
+in ``benchmarks/tracer.py`` against the earlier whole-grid two-pass kernel: 2.3-3.0
+times the throughput with two threads, 1.4-2.5 times on one core (docs/tracer.md,
+Performance).
 """
 
 from __future__ import annotations
@@ -37,8 +39,15 @@ from numba.extending import overload
 
 # Floating-point licence of the flux kernels: contraction (FMA), reassociation,
 # reciprocal; NaN and infinity semantics are kept (the solver checks for NaN).
-# Conservation does not depend on it: every face flux is computed once and used
-# with opposite signs by the two cells it joins.
+# Conservation does not depend on it: each face flux is used with opposite signs by the
+# two cells it joins (a face row shared by two chunks of the 2D kernel is computed by
+# both, by the same call on the same inputs, hence bit for bit the same value).
+#
+# NaN reaches the right-hand side of a cell with a NaN density through the products
+# ``A * P`` of the diffusive fluxes (``0 * NaN`` is NaN), not through the
+# reconstructions: ``min`` and the sign selects of ``face_value`` drop a NaN. Keep
+# those products even where the coefficients are zero (tests/test_tracer_kernel.py
+# checks that a NaN survives a step).
 FASTMATH = {"contract", "reassoc", "arcp", "nsz"}
 
 # Compilation options of the row functions (numba overloads, compiled into the kernels).
@@ -308,18 +317,24 @@ def _accumulate_row_cross(Fk, gp, gm, acc, w, hh):
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
-def _divergence_row(Fx, Fb, Ft, out, ih):
-    """``out = -(Fx[i+1] - Fx[i] + Ft - Fb) / h``."""
+def _stage_row(Fx, Fb, Ft, P0k, Pk, ca, cb, cc, tiny, out, ih):
+    """``out = ca P0 + cb P + cc R`` with ``R = -(Fx[i+1] - Fx[i] + Ft - Fb) / h`` the
+    divergence of the face fluxes; values below ``tiny`` in magnitude become 0 (see
+    :func:`combine`; NaN passes through)."""
     for i in range(out.shape[0]):
-        out[i] = (-(Fx[i + 1] - Fx[i]) - (Ft[i] - Fb[i])) * ih
+        r = (-(Fx[i + 1] - Fx[i]) - (Ft[i] - Fb[i])) * ih
+        v = ca * P0k[i] + cb * Pk[i] + cc * r
+        out[i] = 0.0 if abs(v) < tiny else v
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
-def _divergence_row_cross(Fx, Fb, Ft, gpb, gpt, gmb, gmt, out, ih):
-    """:func:`_divergence_row` plus the four diagonal exchanges of each cell."""
+def _stage_row_cross(Fx, Fb, Ft, gpb, gpt, gmb, gmt, P0k, Pk, ca, cb, cc, tiny, out, ih):
+    """:func:`_stage_row` with the four diagonal exchanges of each cell added to ``R``."""
     for i in range(out.shape[0]):
-        out[i] = ((-(Fx[i + 1] - Fx[i]) - (Ft[i] - Fb[i])) * ih
-                  + gpb[i] - gpt[i + 1] + gmb[i + 1] - gmt[i])
+        r = ((-(Fx[i + 1] - Fx[i]) - (Ft[i] - Fb[i])) * ih
+             + gpb[i] - gpt[i + 1] + gmb[i + 1] - gmt[i])
+        v = ca * P0k[i] + cb * Pk[i] + cc * r
+        out[i] = 0.0 if abs(v) < tiny else v
 
 
 @functools.lru_cache(maxsize=None)
@@ -332,8 +347,10 @@ def rhs_2d_kernel(limiter: int):
     r = _reach(limiter)
 
     @njit(parallel=True, cache=True, fastmath=FASTMATH, error_model="numpy")
-    def rhs_2d(P, uxf, uzf, Axx, Azz, C, has_cross, eps, h, out, Fz_edge, Fz_acc, w_acc):
-        """dP/dt of the 2D Fokker-Planck equation, fused advection + explicit diffusion.
+    def rhs_2d(P, uxf, uzf, Axx, Azz, C, has_cross, eps, h, out, Fz_edge, Fz_acc, w_acc,
+               P0, ca, cb, cc, tiny):
+        """``R = dP/dt`` of the 2D Fokker-Planck equation (fused advection + explicit
+        diffusion), combined into a Runge-Kutta stage ``out = ca P0 + cb P + cc R``.
 
         Args:
             P: (nz, nx) density.
@@ -348,13 +365,16 @@ def rhs_2d_kernel(limiter: int):
             eps: WENO scale ``1 / P_scale**2`` (the reconstruction ``limiter`` is a
                 compile-time constant of this specialisation).
             h: spacing.
-            out: (nz, nx) result dP/dt.
+            out: (nz, nx) result ``ca P0 + cb P + cc R``, entries below ``tiny`` in
+                magnitude set to 0 (``ca = cb = tiny = 0``, ``cc = 1`` give ``R``). May be
+                ``P0`` itself (elementwise), never ``P``.
             Fz_edge: (2, nx) written: the vertical face fluxes through the floor (row 0)
                 and the top (row 1), for the outflow budget.
             Fz_acc: (nz+1, nx) accumulator of the upward face fluxes including the
                 diagonal exchanges (each split half to the two columns it joins),
                 ``Fz_acc += w_acc * (Fz + h/2 * corner exchanges)``.
             w_acc: weight (time-step times Runge-Kutta weight).
+            P0, ca, cb, cc, tiny: the stage combination (above).
         """
         nz, nx = P.shape
         ih = 1.0 / h
@@ -398,10 +418,11 @@ def rhs_2d_kernel(limiter: int):
                 k = k0 + kk
                 xface_row(P[k], uxf[k], Axx[k], Fx, ih, eps, limiter)
                 if has_cross:
-                    _divergence_row_cross(Fx, Fz[kk], Fz[kk + 1], gp[kk], gp[kk + 1],
-                                          gm[kk], gm[kk + 1], out[k], ih)
+                    _stage_row_cross(Fx, Fz[kk], Fz[kk + 1], gp[kk], gp[kk + 1], gm[kk],
+                                     gm[kk + 1], P0[k], P[k], ca, cb, cc, tiny, out[k], ih)
                 else:
-                    _divergence_row(Fx, Fz[kk], Fz[kk + 1], out[k], ih)
+                    _stage_row(Fx, Fz[kk], Fz[kk + 1], P0[k], P[k], ca, cb, cc, tiny, out[k],
+                               ih)
 
     return rhs_2d
 

@@ -226,8 +226,13 @@ class _Workspace:
         self.stage = [np.empty(shape), np.empty(shape)]
 
 
-def _rhs(op: _Operator, P: np.ndarray, ws: _Workspace, w_acc: float) -> tuple[float, float, float]:
+def _rhs(op: _Operator, P: np.ndarray, ws: _Workspace, w_acc: float,
+         stage: tuple | None = None) -> tuple[float, float, float]:
     """Fill ``ws.R = dP/dt``, accumulate ``w_acc * Fz``.
+
+    With ``stage = (a, P0, dt, out)`` write the Runge-Kutta stage
+    ``out = a P0 + (1 - a) (P + dt R)`` instead (values below ``ws.tiny`` set to 0); in 2D
+    the kernel does this in the same pass and ``ws.R`` is not written.
 
     Returns:
         Outflow rates (probability per unit time) through the floor, the sides, the top.
@@ -235,8 +240,14 @@ def _rhs(op: _Operator, P: np.ndarray, ws: _Workspace, w_acc: float) -> tuple[fl
     h = op.h
     f = op.faces
     if op.dims == 2:
+        if stage is None:
+            out, P0, ca, cb, cc, tiny = ws.R, P, 0.0, 0.0, 1.0, 0.0
+        else:
+            a, P0, dt, out = stage
+            ca, cb, cc, tiny = a, 1.0 - a, (1.0 - a) * dt, ws.tiny
         K.rhs_2d_kernel(op.limiter)(P, f["x"], f["z"], op.Axx, op.Azz, op.C, op.k_cross,
-                                    op.eps, h, ws.R, ws.Fz_edge, ws.Fz_acc, w_acc)
+                                    op.eps, h, out, ws.Fz_edge, ws.Fz_acc, w_acc,
+                                    P0, ca, cb, cc, tiny)
         side = np.dot(f["x"][:, -1], P[:, -1]) - np.dot(f["x"][:, 0], P[:, 0])
         floor = -ws.Fz_edge[0].sum()
         top = ws.Fz_edge[1].sum()
@@ -252,25 +263,28 @@ def _rhs(op: _Operator, P: np.ndarray, ws: _Workspace, w_acc: float) -> tuple[fl
         floor = -ws.Fz[0].sum()
         top = ws.Fz[-1].sum()
         hm = h * h
+        if stage is not None:
+            a, P0, dt, out = stage
+            K.combine(a, P0.ravel(), 1.0 - a, P.ravel(), (1.0 - a) * dt, ws.R.ravel(),
+                      out.ravel(), ws.tiny)
     return hm * floor, hm * side, hm * top
 
 
 def _rk_step(ops, P, dt, scheme, ws, budget):
-    """One SSP-RK step of ``dP/dt = L(P)``; ``ops[s]`` is the operator at stage ``s``."""
+    """One SSP-RK step of ``dP/dt = L(P)``; ``ops[s]`` is the operator at stage ``s``.
+
+    Stage ``s`` writes ``a_s P0 + (1 - a_s) (P_{s-1} + dt L(P_{s-1}))`` into a work array
+    (the last stage into ``P0`` itself: elementwise, so safe in place).
+    """
     P0 = P
     prev = P0
-    out = None
     for s in range(scheme.stages):
-        rates = _rhs(ops[s], prev, ws, scheme.b[s] * dt)
+        out = ws.stage[s % 2] if s < scheme.stages - 1 else P0
+        rates = _rhs(ops[s], prev, ws, scheme.b[s] * dt, (scheme.alpha[s], P0, dt, out))
         for j, r in enumerate(rates):
             budget[j] += scheme.b[s] * dt * r
-        out = ws.stage[s % 2] if s < scheme.stages - 1 else P0   # elementwise: safe in place
-        a = scheme.alpha[s]
-        # out = a P0 + (1 - a) (prev + dt R)
-        K.combine(a, P0.ravel(), 1.0 - a, prev.ravel(), (1.0 - a) * dt, ws.R.ravel(), out.ravel(),
-                  ws.tiny)
         prev = out
-    return out
+    return prev
 
 
 def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
