@@ -174,14 +174,18 @@ def test_fused_stages_equal_explicit_runge_kutta(dims, scheme_name):
     assert (got >= 0).all()
 
 
-def test_nan_reaches_the_stage_output():
-    """A NaN in P must survive the selects and fastmath of the kernel, so that the solver
+@pytest.mark.parametrize("dims", [2, 3])
+def test_nan_reaches_the_stage_output(dims):
+    """A NaN in P must survive the selects and fastmath of the kernels, so that the solver
     sees a blow-up instead of writing a silently wrong field."""
-    grid, f, P = random_problem(2, 37, 11, seed=3, cross=True)
-    P[20, 5] = np.nan
-    op = tracer._Operator(grid, f, LIMITERS["koren"].code, np.ones(11, bool), implicit=False)
-    ws = tracer._Workspace(grid, p_scale=1.0)
     from spotpde._timestepping import scheme_from_name
 
+    grid, f, P = random_problem(dims, 37 if dims == 2 else 9, 11 if dims == 2 else 7,
+                                seed=3, cross=True)
+    where = (20, 5) if dims == 2 else (4, 3, 3)
+    P[where] = np.nan
+    op = tracer._Operator(grid, f, LIMITERS["koren"].code, np.ones(grid.shape[1:], bool),
+                          implicit=False)
+    ws = tracer._Workspace(grid)
     out = tracer._rk_step([op] * 3, P, 1e-3, scheme_from_name("ssprk3"), ws, [0.0, 0.0, 0.0])
-    assert np.isnan(out[20, 5])
+    assert np.isnan(out[where])
