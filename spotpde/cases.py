@@ -24,6 +24,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from .errors import CaseError
 from .grid import WALLS, Grid
 from .parameters import PROFILES, SPOT_MODES, TRACER_MODELS, Orifice, Spots, Tracer, TracerStart
@@ -43,7 +45,7 @@ DEFAULTS: dict[str, dict[str, Any]] = {
     "kernel": {"shape": "gaussian", "size": 1.0, "volume": 0.05, "height": None,
                "aspect": 1.0, "rule": 0.5},
     "tracer": {"model": "spot", "start": None, "layers": None, "t_end": 100.0, "frames": 20,
-               "limiter": "weno5", "cfl": 0.9, "diffusion": "auto"},
+               "limiter": "weno5", "cfl": 0.9, "diffusion": "auto", "snapshots": "auto"},
     "output": {"path": "out.nc"},
 }
 RATE_TABLE_KEYS = {"times": None, "values": None}
@@ -140,6 +142,29 @@ class Case:
         data = {t: dict(v) if isinstance(v, dict) else v for t, v in self.data.items()}
         data["output"]["path"] = os.fspath(path)
         return Case(validate(data), None, self.source)
+
+    def snapshot_times(self) -> np.ndarray | None:
+        """Times of the spot-density snapshots behind a tracer in a transient flow.
+
+        With ``spots.mode = "transient"`` and a tracer, the tracer's drift and diffusivity
+        follow the flow as it starts: the spot density is kept at these times and the
+        coefficient fields are interpolated linearly in time between them. The times are
+        ``tracer.snapshots`` equally spaced times over ``[0, T]``,
+        ``T = max(spots.t_end, tracer.t_end)`` (the spot solve runs on to the tracer's end
+        if that is later), with ``spots.t_end`` added (the reported ``rho_s``).
+
+        Returns:
+            Sorted times in the case time unit, or ``None`` (steady spots, or no tracer).
+        """
+        t = self.data.get("tracer")
+        s = self.data["spots"]
+        if t is None or s["mode"] != "transient":
+            return None
+        T = max(s["t_end"], t["t_end"])
+        n = t["snapshots"]
+        if n == "auto":
+            n = auto_snapshots(self.data)
+        return np.union1d(np.linspace(0.0, T, n), [s["t_end"]])
 
     def to_toml(self) -> str:
         """The validated case as TOML text, every default written out."""
@@ -240,6 +265,22 @@ def available_memory() -> int:
         return 4 * 1024**3
 
 
+def auto_snapshots(data: Mapping) -> int:
+    """``tracer.snapshots = "auto"``: one snapshot per time a spot needs to rise by the
+    kernel's vertical size (``kernel.size / kernel.aspect / max v_s``) over
+    ``[0, max(spots.t_end, tracer.t_end)]``, at least 21 and at most 401.
+
+    Args:
+        data: a validated case mapping with a tracer and transient spots.
+    """
+    s, k, t = data["spots"], data["kernel"], data["tracer"]
+    drift = s["drift"]
+    v = float(np.max(np.abs(drift["values"] if isinstance(drift, Mapping) else drift)))
+    T = max(s["t_end"], t["t_end"])
+    n = math.ceil(T * v * k["aspect"] / k["size"]) + 1
+    return int(min(max(n, 21), 401))
+
+
 def estimate_bytes(data: Mapping, frames_in_memory: bool = True) -> int:
     """Estimate the memory a run of a validated case holds at its peak.
 
@@ -276,6 +317,10 @@ def estimate_bytes(data: Mapping, frames_in_memory: bool = True) -> int:
     if tracer is not None:
         # frames (one in flight when streamed), P_height, scheme fluxes and stages
         n_tracer = (tracer["frames"] if frames_in_memory else 1) + 1 + 16
+        if data["spots"]["mode"] == "transient":
+            # spot-density snapshots, fields of two of them and their interpolant
+            n = tracer["snapshots"]
+            n_tracer += (auto_snapshots(data) if n == "auto" else n) + 1 + 3 * n_fields
     total = 8.0 * cells * (n_fields + scratch + n_tracer)
     total += 16.0 * padded * 6 + 8.0 * stencil * 2
     return int(min(total, 1e30))
@@ -521,7 +566,13 @@ class _Validator:
             "limiter": self.choice("tracer.limiter", t["limiter"], LIMITERS),
             "cfl": self.number("tracer.cfl", t["cfl"], gt=0, le=1),
             "diffusion": self.choice("tracer.diffusion", t["diffusion"], DIFFUSION_MODES),
+            "snapshots": t["snapshots"],
         }
+        n = t["snapshots"]
+        if n != "auto" and not (isinstance(n, int) and not isinstance(n, bool)
+                                and 2 <= n <= MAX_FRAMES):
+            self.bad("tracer.snapshots", f'must be "auto" or an integer in [2, {MAX_FRAMES}]',
+                     n)
         if t["start"] is not None and t["layers"] is not None:
             self.problems.append(
                 "tracer: give either tracer.start (a Gaussian blob) or tracer.layers, not both")
@@ -612,6 +663,9 @@ class _Validator:
                          'inside the disk/sphere); give kernel.volume instead', k["height"])
         # tracer
         t = data.get("tracer")
+        if t is not None and t.get("snapshots", "auto") != "auto" and s["mode"] != "transient":
+            self.bad("tracer.snapshots", 'is only used when spots.mode = "transient"; '
+                     'remove it or set it to "auto"', t["snapshots"])
         if t is not None and "start" in t:
             st = t["start"]
             if not x0 <= st["x"] <= x1:
@@ -684,8 +738,6 @@ def _field(value, grid: Grid):
     """A constant, or a grid-shaped array from a piecewise-linear profile in x or z."""
     if not isinstance(value, Mapping):
         return value
-    import numpy as np
-
     axis = "x" if "x" in value else "z"
     line = np.interp(grid.coords()[axis], value[axis], value["values"])
     shape = [1] * len(grid.shape)

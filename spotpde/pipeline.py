@@ -3,11 +3,18 @@
 Stages (each reports its progress)::
 
     spot density     spot_density.solve(grid, orifice, spots)          -> rho_s
+                     (transient with a tracer: spot_density.transient(..., times=))
     particle fields  coefficients.particle_fields(grid, rho_s, spots, kernel, rule)
                      (tracer.model = "void": void.particle_fields(grid, rho_s, spots, V1))
     kinematic model  kinematic.speed(grid, orifice, b) * V1 * Q0       -> v_kin
     tracer           tracer.solve(grid, fields, P0, t_end, frames, limiter=, cfl=,
                      diffusion=, on_frame=)                             (optional)
+
+With ``spots.mode = "transient"`` and a tracer, the spot density is kept at the times
+``case.snapshot_times()`` (over ``[0, max(spots.t_end, tracer.t_end)]``), and the tracer
+gets time-dependent coefficients: the particle fields of the two snapshots around ``t``,
+interpolated linearly (:class:`SnapshotFields`). The reported ``rho_s`` and fields are
+those at ``spots.t_end``.
 
 With ``run(case, path=...)`` the tracer's ``on_frame`` is an :class:`spotpde.io.FrameWriter`
 that streams every frame to the result file, so ``P`` is never held in memory whole.
@@ -82,7 +89,16 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
     grid, orifice, spots = case.grid, case.orifice, case.spots
 
     spot_density = importlib.import_module("spotpde.spot_density")
-    rho_s = spot_density.solve(grid, orifice, spots, progress=_stage(progress, "spot density"))
+    snap_times = case.snapshot_times()
+    if snap_times is None:
+        rho_s = spot_density.solve(grid, orifice, spots,
+                                   progress=_stage(progress, "spot density"))
+        snapshots = None
+    else:
+        snapshots = spot_density.transient(grid, orifice, spots, float(snap_times[-1]),
+                                           times=snap_times,
+                                           progress=_stage(progress, "spot density"))
+        rho_s = snapshots[int(np.argmin(np.abs(snap_times - spots.t_end)))]
     rho_s = _check_shape(np.asarray(rho_s, dtype=float), grid)
     _check_finite("rho_s", rho_s)
     rho_s = clip_roundoff(rho_s)
@@ -90,16 +106,15 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
     stage = _stage(progress, "particle fields") or _noop
     stage(0.0)
     if case.model == "void":
-        void = importlib.import_module("spotpde.void")
         V1 = float(case.kernel.V1)
         V2 = V1
-        fields = void.particle_fields(grid, rho_s, spots, V1)
     else:
-        coefficients = importlib.import_module("spotpde.coefficients")
-        kernel = case.kernel
-        V1, V2 = float(kernel.V1), float(kernel.V2)
-        fields = coefficients.particle_fields(grid, rho_s, spots, kernel, rule=case.rule)
-    fields = {name: np.asarray(a, dtype=float) for name, a in fields.items()}
+        V1, V2 = float(case.kernel.V1), float(case.kernel.V2)
+    # transient fronts with b_par = 0 leave dispersive undershoots of a few per cent in
+    # rho_s (BDF2, second-order upwind); a spot density cannot be negative, so the
+    # coefficient fields of a transient run use its positive part (rho_s is reported as
+    # solved)
+    fields = particle_fields(case, rho_s if snapshots is None else np.maximum(rho_s, 0.0))
     stage(1.0)
 
     stage = _stage(progress, "kinematic model") or _noop
@@ -115,7 +130,9 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
     if case.tracer is not None:
         tracer = importlib.import_module("spotpde.tracer")
         P0 = initial_density(grid, case.tracer.start)
-        res = tracer.solve(grid, fields, P0, case.tracer.t_end, case.tracer.frames,
+        coefficients = (fields if snapshots is None else
+                        SnapshotFields(snap_times, snapshots, lambda r: particle_fields(case, r)))
+        res = tracer.solve(grid, coefficients, P0, case.tracer.t_end, case.tracer.frames,
                            progress=_stage(progress, "tracer"), on_frame=on_frame,
                            **case.tracer_options)
         times = np.asarray(res.times, dtype=float)
@@ -138,6 +155,64 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
     if case.source is not None:
         attrs["case_file"] = str(case.source)
     return make_dataset(grid, out, times=times, attrs=attrs)
+
+
+def particle_fields(case: Case, rho_s: np.ndarray) -> dict[str, np.ndarray]:
+    """The particle drift and diffusivity fields of a case for one spot density.
+
+    ``coefficients.particle_fields`` with the case's kernel and rule, or
+    ``void.particle_fields`` for ``tracer.model = "void"``.
+    """
+    if case.model == "void":
+        void = importlib.import_module("spotpde.void")
+        fields = void.particle_fields(case.grid, rho_s, case.spots, float(case.kernel.V1))
+    else:
+        coefficients = importlib.import_module("spotpde.coefficients")
+        fields = coefficients.particle_fields(case.grid, rho_s, case.spots, case.kernel,
+                                              rule=case.rule)
+    return {name: np.asarray(a, dtype=float) for name, a in fields.items()}
+
+
+class SnapshotFields:
+    """Time-dependent coefficient fields from spot-density snapshots: ``fields(t)``.
+
+    Between snapshot times ``t_j <= t <= t_{j+1}`` the fields are
+    ``(1 - s) F(rho_j+) + s F(rho_{j+1}+)``, ``s = (t - t_j) / (t_{j+1} - t_j)`` (linear
+    in time; ``F`` the particle fields of one spot density, ``rho+`` its positive part),
+    constant beyond the last snapshot. The fields of a snapshot are computed when first needed and the last
+    three are kept (the tracer asks for non-decreasing times, a few per step).
+
+    Args:
+        times: sorted snapshot times (case time unit).
+        rho: snapshots, ``(len(times),) + grid shape``.
+        fields_of: ``rho_s -> dict`` of particle fields.
+    """
+
+    def __init__(self, times: np.ndarray, rho: np.ndarray, fields_of):
+        self.times = np.asarray(times, dtype=float)
+        self.rho = rho
+        self.fields_of = fields_of
+        self._cache: dict[int, dict[str, np.ndarray]] = {}
+
+    def _fields(self, j: int) -> dict[str, np.ndarray]:
+        f = self._cache.get(j)
+        if f is None:
+            r = np.asarray(self.rho[j], dtype=float)
+            _check_finite(f"rho_s(t={self.times[j]:g})", r)
+            f = self.fields_of(np.maximum(r, 0.0))     # positive part: see _run
+            if len(self._cache) >= 3:
+                self._cache.pop(min(self._cache))      # the earliest: times only grow
+            self._cache[j] = f
+        return f
+
+    def __call__(self, t: float) -> dict[str, np.ndarray]:
+        times = self.times
+        j = int(np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 1))
+        if j == len(times) - 1 or t <= times[j]:
+            return self._fields(j)
+        s = (t - times[j]) / (times[j + 1] - times[j])
+        a, b = self._fields(j), self._fields(j + 1)
+        return {k: (1.0 - s) * a[k] + s * b[k] for k in a}
 
 
 def initial_density(grid, start: TracerStart) -> np.ndarray:

@@ -314,7 +314,8 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
         diffusion: ``"explicit"``, ``"implicit"`` (Strang splitting with backward-Euler
             half steps: first order in time for the diffusive part, unconditionally
             positive) or ``"auto"``: implicit when the explicit diffusive limit would
-            more than double the number of steps.
+            more than double the number of steps (time-dependent fields: at ``t = 0``
+            or at ``t_end``).
         cfl: fraction (0, 1] of the positivity limit ``dt <= 1 / max(a)`` used.
         outlet: optional boolean mask over the floor (shape ``grid.shape[1:]``) where
             probability may leave; default: wherever the bottom cells have ``u_z < 0``.
@@ -385,7 +386,12 @@ def _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl
     p_scale = float(P.max()) if P.size else 1.0
     op0 = _Operator(grid, f0, lim.code, outlet, implicit=False, p_scale=p_scale)
     if diffusion == "auto":
-        implicit = op0.rate_explicit > 2.0 * op0.rate_adv and op0.rate_diff > 0
+        # time-dependent fields: judge by the start and the end (a flow that starts
+        # from rest has no coefficients at t = 0)
+        probes = [op0] if steady else [
+            op0, _Operator(grid, _check_fields(grid, get(float(t_end)), f"fields(t={t_end:g})"),
+                           lim.code, outlet, implicit=False, p_scale=p_scale)]
+        implicit = any(o.rate_explicit > 2.0 * o.rate_adv and o.rate_diff > 0 for o in probes)
     else:
         implicit = diffusion == "implicit"
     if implicit:

@@ -223,6 +223,12 @@ def test_dump_toml_round_trips_scalars(s, f, i, b):
                                           '"vanleer", "mc", "minmod", "weno5", "upwind"'),
     ({"tracer": {"cfl": 1.5}}, "tracer.cfl: must be <= 1, got 1.5"),
     ({"tracer": {"diffusion": "fast"}}, 'tracer.diffusion: must be one of "auto"'),
+    ({"tracer": {"snapshots": 1}}, 'tracer.snapshots: must be "auto" or an integer in [2, '),
+    ({"tracer": {"snapshots": "many"}}, 'tracer.snapshots: must be "auto" or an integer'),
+    ({"tracer": {"snapshots": 2.5}}, 'tracer.snapshots: must be "auto" or an integer'),
+    ({"tracer": {"snapshots": True}}, 'tracer.snapshots: must be "auto" or an integer'),
+    ({"tracer": {"snapshots": 10}}, "tracer.snapshots: is only used when spots.mode = "
+                                    '"transient"'),
     ({"tracer": {"layers": {"spacing": 2.0}}}, "tracer: give either tracer.start"),
     ({"tracer": {"start": {"x": 0.0, "width": 1.0}}}, "tracer.start.z: required"),
     ({"tracer": {"start": {"x": 0.0, "z": 9.0}}}, "tracer.start.z: must lie inside"),
