@@ -149,22 +149,19 @@ class Case:
         With ``spots.mode = "transient"`` and a tracer, the tracer's drift and diffusivity
         follow the flow as it starts: the spot density is kept at these times and the
         coefficient fields are interpolated linearly in time between them. The times are
-        ``tracer.snapshots`` equally spaced times over ``[0, T]``,
-        ``T = max(spots.t_end, tracer.t_end)`` (the spot solve runs on to the tracer's end
-        if that is later), with ``spots.t_end`` added (the reported ``rho_s``).
+        ``tracer.snapshots`` equally spaced times over ``[0, tracer.t_end]`` (the reported
+        ``rho_s`` is solved separately, at ``spots.t_end``).
 
         Returns:
-            Sorted times in the case time unit, or ``None`` (steady spots, or no tracer).
+            Times in the case time unit, or ``None`` (steady spots, or no tracer).
         """
         t = self.data.get("tracer")
-        s = self.data["spots"]
-        if t is None or s["mode"] != "transient":
+        if t is None or self.data["spots"]["mode"] != "transient":
             return None
-        T = max(s["t_end"], t["t_end"])
         n = t["snapshots"]
         if n == "auto":
             n = auto_snapshots(self.data)
-        return np.union1d(np.linspace(0.0, T, n), [s["t_end"]])
+        return np.linspace(0.0, t["t_end"], n)
 
     def to_toml(self) -> str:
         """The validated case as TOML text, every default written out."""
@@ -268,7 +265,7 @@ def available_memory() -> int:
 def auto_snapshots(data: Mapping) -> int:
     """``tracer.snapshots = "auto"``: one snapshot per time a spot needs to rise by the
     kernel's vertical size (``kernel.size / kernel.aspect / max v_s``) over
-    ``[0, max(spots.t_end, tracer.t_end)]``, at least 21 and at most 401.
+    ``[0, tracer.t_end]``, at least 21 and at most 401.
 
     Args:
         data: a validated case mapping with a tracer and transient spots.
@@ -276,8 +273,7 @@ def auto_snapshots(data: Mapping) -> int:
     s, k, t = data["spots"], data["kernel"], data["tracer"]
     drift = s["drift"]
     v = float(np.max(np.abs(drift["values"] if isinstance(drift, Mapping) else drift)))
-    T = max(s["t_end"], t["t_end"])
-    n = math.ceil(T * v * k["aspect"] / k["size"]) + 1
+    n = math.ceil(t["t_end"] * v * k["aspect"] / k["size"]) + 1
     return int(min(max(n, 21), 401))
 
 
@@ -318,9 +314,12 @@ def estimate_bytes(data: Mapping, frames_in_memory: bool = True) -> int:
         # frames (one in flight when streamed), P_height, scheme fluxes and stages
         n_tracer = (tracer["frames"] if frames_in_memory else 1) + 1 + 16
         if data["spots"]["mode"] == "transient":
-            # spot-density snapshots, fields of two of them and their interpolant
+            # spot-density snapshots (one more in flight), the fields of three of them,
+            # and the tracer's cache of operators (face velocities, diffusion splitting,
+            # the interpolated fields) for a few stage times
             n = tracer["snapshots"]
-            n_tracer += (auto_snapshots(data) if n == "auto" else n) + 1 + 3 * n_fields
+            n_tracer += ((auto_snapshots(data) if n == "auto" else n) + 1 + 3 * n_fields
+                         + 5 * (n_fields + 2 * dims + 4))
     total = 8.0 * cells * (n_fields + scratch + n_tracer)
     total += 16.0 * padded * 6 + 8.0 * stencil * 2
     return int(min(total, 1e30))
@@ -701,10 +700,12 @@ class _Validator:
             nx = (d["x"][1] - d["x"][0]) / d["spacing"]
             nz = (d["z"][1] - d["z"][0]) / d["spacing"]
             cells = " x ".join(f"{n:,.0f}" for n in ([nz] + [nx] * (d["dims"] - 1)))
+            snaps = data.get("tracer") is not None and data["spots"]["mode"] == "transient"
             self.bad("domain.spacing", f"the grid of {cells} cells (with kernel stencil and "
                      f"tracer frames) needs about {_gb(need)}, more than the "
                      f"{_gb(MEMORY_FRACTION * have)} this machine can spare; use a larger "
-                     f"spacing, a smaller domain or fewer tracer.frames", d["spacing"])
+                     f"spacing, a smaller domain or fewer tracer.frames"
+                     + (" or tracer.snapshots" if snaps else ""), d["spacing"])
 
 
 def _gb(n: float) -> str:

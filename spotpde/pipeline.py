@@ -10,11 +10,11 @@ Stages (each reports its progress)::
     tracer           tracer.solve(grid, fields, P0, t_end, frames, limiter=, cfl=,
                      diffusion=, on_frame=)                             (optional)
 
-With ``spots.mode = "transient"`` and a tracer, the spot density is kept at the times
-``case.snapshot_times()`` (over ``[0, max(spots.t_end, tracer.t_end)]``), and the tracer
-gets time-dependent coefficients: the particle fields of the two snapshots around ``t``,
+With ``spots.mode = "transient"`` and a tracer, the spot density is also kept at the
+times ``case.snapshot_times()`` (over ``[0, tracer.t_end]``), and the tracer gets
+time-dependent coefficients: the particle fields of the two snapshots around ``t``,
 interpolated linearly (:class:`SnapshotFields`). The reported ``rho_s`` and fields are
-those at ``spots.t_end``.
+those at ``spots.t_end`` (the same solve when ``spots.t_end = tracer.t_end``).
 
 With ``run(case, path=...)`` the tracer's ``on_frame`` is an :class:`spotpde.io.FrameWriter`
 that streams every frame to the result file, so ``P`` is never held in memory whole.
@@ -90,15 +90,16 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
 
     spot_density = importlib.import_module("spotpde.spot_density")
     snap_times = case.snapshot_times()
-    if snap_times is None:
-        rho_s = spot_density.solve(grid, orifice, spots,
-                                   progress=_stage(progress, "spot density"))
-        snapshots = None
-    else:
+    snapshots = None
+    if snap_times is not None:
         snapshots = spot_density.transient(grid, orifice, spots, float(snap_times[-1]),
                                            times=snap_times,
                                            progress=_stage(progress, "spot density"))
-        rho_s = snapshots[int(np.argmin(np.abs(snap_times - spots.t_end)))]
+    if snapshots is not None and snap_times[-1] == spots.t_end:
+        rho_s = snapshots[-1]
+    else:
+        rho_s = spot_density.solve(grid, orifice, spots,
+                                   progress=_stage(progress, "spot density"))
     rho_s = _check_shape(np.asarray(rho_s, dtype=float), grid)
     _check_finite("rho_s", rho_s)
     rho_s = clip_roundoff(rho_s)
@@ -114,7 +115,8 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
     # rho_s (BDF2, second-order upwind); a spot density cannot be negative, so the
     # coefficient fields of a transient run use its positive part (rho_s is reported as
     # solved)
-    fields = particle_fields(case, rho_s if snapshots is None else np.maximum(rho_s, 0.0))
+    transient = spots.mode == "transient"
+    fields = particle_fields(case, np.maximum(rho_s, 0.0) if transient else rho_s)
     stage(1.0)
 
     stage = _stage(progress, "kinematic model") or _noop
@@ -179,8 +181,9 @@ class SnapshotFields:
     Between snapshot times ``t_j <= t <= t_{j+1}`` the fields are
     ``(1 - s) F(rho_j+) + s F(rho_{j+1}+)``, ``s = (t - t_j) / (t_{j+1} - t_j)`` (linear
     in time; ``F`` the particle fields of one spot density, ``rho+`` its positive part),
-    constant beyond the last snapshot. The fields of a snapshot are computed when first needed and the last
-    three are kept (the tracer asks for non-decreasing times, a few per step).
+    constant beyond the last snapshot. The fields of a snapshot are computed when first
+    needed and three are kept, dropping the earliest (the tracer asks at its stage times:
+    they go back by at most a step, so at most two snapshots are in use).
 
     Args:
         times: sorted snapshot times (case time unit).
@@ -201,7 +204,7 @@ class SnapshotFields:
             _check_finite(f"rho_s(t={self.times[j]:g})", r)
             f = self.fields_of(np.maximum(r, 0.0))     # positive part: see _run
             if len(self._cache) >= 3:
-                self._cache.pop(min(self._cache))      # the earliest: times only grow
+                self._cache.pop(min(self._cache))
             self._cache[j] = f
         return f
 

@@ -410,8 +410,8 @@ def _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl
         if o is None:
             o = _Operator(grid, _check_fields(grid, get(t), f"fields(t={t:g})"), lim.code,
                           outlet, implicit, p_scale)
-            if len(cache) > 8:
-                cache.clear()
+            if len(cache) > 4:        # a step's stages and the next step's start
+                cache.pop(min(cache))
             cache[t] = o
         return o
 
