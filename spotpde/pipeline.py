@@ -106,11 +106,8 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
 
     stage = _stage(progress, "particle fields") or _noop
     stage(0.0)
-    if case.model == "void":
-        V1 = float(case.kernel.V1)
-        V2 = V1
-    else:
-        V1, V2 = float(case.kernel.V1), float(case.kernel.V2)
+    V1 = float(case.kernel.V1)
+    V2 = V1 if case.model == "void" else float(case.kernel.V2)   # void: one particle a spot
     # transient fronts with b_par = 0 leave dispersive undershoots of a few per cent in
     # rho_s (BDF2, second-order upwind); a spot density cannot be negative, so the
     # coefficient fields of a transient run use its positive part (rho_s is reported as
