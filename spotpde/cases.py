@@ -40,8 +40,10 @@ DIFFUSION_MODES = ("auto", "explicit", "implicit")
 DEFAULTS: dict[str, dict[str, Any]] = {
     "domain": {"dims": 2, "x": [-30.0, 30.0], "z": [0.0, 100.0], "spacing": 0.25,
                "walls": "reflecting"},
-    "orifice": {"x": 0.0, "y": None, "width": 0.0, "profile": "uniform", "rate": 1.0},
-    "spots": {"drift": 1.0, "b": 1.3, "b_par": 0.0, "mode": "steady", "t_end": 0.0},
+    "orifice": {"x": 0.0, "y": None, "width": 0.0, "profile": "uniform", "rate": 1.0,
+                "noise": None},
+    "spots": {"drift": 1.0, "b": 1.3, "b_par": 0.0, "mode": "steady", "t_end": 0.0,
+              "rho_max": None, "flux": None, "diffusion_scaling": None, "frames": None},
     "kernel": {"shape": "gaussian", "size": 1.0, "volume": 0.05, "height": None,
                "aspect": 1.0, "rule": 0.5},
     "tracer": {"model": "spot", "start": None, "layers": None, "t_end": 100.0, "frames": 20,
@@ -50,6 +52,11 @@ DEFAULTS: dict[str, dict[str, Any]] = {
 }
 RATE_TABLE_KEYS = {"times": None, "values": None}
 PROFILE_KEYS = {"x": None, "z": None, "values": None}
+#: ``orifice.noise``: log-normal Ornstein-Uhlenbeck modulation of Q0 (spotpde.noise)
+NOISE_KEYS = {"amplitude": None, "correlation_time": None, "seed": 0}
+#: interacting spots (spotpde.traffic): flux shapes and diffusion scalings
+FLUX_SHAPES = ("greenshields", "triangular")
+DIFFUSION_SCALINGS = ("fixed", "speed")
 START_KEYS = {"x": None, "y": None, "z": None, "width": 1.0}
 LAYERS_KEYS = {"spacing": 10.0}
 
@@ -93,11 +100,17 @@ class Case:
             from .orifice import rate_from_table
 
             rate = rate_from_table(rate["times"], rate["values"])
+        if o.get("noise") is not None:
+            from .noise import noisy_rate
+
+            rate = noisy_rate(rate, **o["noise"])
         self.orifice = Orifice(x=o["x"], width=o["width"], profile=o["profile"],
                                rate=rate, y=o.get("y"))
         self.spots = Spots(drift=_field(s["drift"], self.grid), b=_field(s["b"], self.grid),
                            b_par=_field(s["b_par"], self.grid), mode=s["mode"],
-                           t_end=s["t_end"])
+                           t_end=s["t_end"], rho_max=s.get("rho_max"),
+                           flux=s.get("flux") or "greenshields",
+                           diffusion_scaling=s.get("diffusion_scaling") or "fixed")
         self.tracer = _tracer(data.get("tracer"), self.grid, self.orifice)
         t = data.get("tracer")
         self.tracer_options = ({} if t is None else
@@ -468,7 +481,26 @@ class _Validator:
         }
         if t["y"] is not None:
             out["y"] = self.number("orifice.y", t["y"])
+        if t["noise"] is not None:
+            out["noise"] = self.noise(t["noise"])
         return out
+
+    def noise(self, raw):
+        """``orifice.noise = { amplitude, correlation_time, seed }`` (spotpde.noise)."""
+        t = self.table("orifice.noise", raw, NOISE_KEYS)
+        if t is None:
+            return None
+        for key in ("amplitude", "correlation_time"):
+            if t[key] is None:
+                self.problems.append(f"orifice.noise.{key}: required in an orifice.noise table")
+        return {"amplitude": (None if t["amplitude"] is None else
+                              self.number("orifice.noise.amplitude", t["amplitude"], ge=0,
+                                          le=10)),
+                "correlation_time": (None if t["correlation_time"] is None else
+                                     self.number("orifice.noise.correlation_time",
+                                                 t["correlation_time"], gt=0)),
+                "seed": self.number("orifice.noise.seed", t["seed"], ge=0, integer=True,
+                                    limit=2**63 - 1)}
 
     def rate_table(self, raw):
         """``orifice.rate = { times = [...], values = [...] }``: Q0(t) for transient runs."""
@@ -538,7 +570,23 @@ class _Validator:
             "b_par": self.coefficient("spots.b_par", t["b_par"], ge=0),
             "mode": self.choice("spots.mode", t["mode"], SPOT_MODES),
             "t_end": self.number("spots.t_end", t["t_end"], ge=0),
+            **self.interacting(t),
         }
+
+    def interacting(self, t):
+        """Optional interacting-spot keys (spotpde.traffic); absent keys stay absent."""
+        out = {}
+        if t["rho_max"] is not None:
+            out["rho_max"] = self.number("spots.rho_max", t["rho_max"], gt=0, limit=1e12)
+        if t["flux"] is not None:
+            out["flux"] = self.choice("spots.flux", t["flux"], FLUX_SHAPES)
+        if t["diffusion_scaling"] is not None:
+            out["diffusion_scaling"] = self.choice("spots.diffusion_scaling",
+                                                   t["diffusion_scaling"], DIFFUSION_SCALINGS)
+        if t["frames"] is not None:
+            out["frames"] = self.number("spots.frames", t["frames"], ge=2, integer=True,
+                                        limit=MAX_FRAMES)
+        return out
 
     def _kernel(self, t):
         out = {
@@ -652,6 +700,16 @@ class _Validator:
                      "give a number for a steady run", o["rate"])
         if s["mode"] == "transient" and s["t_end"] <= 0:
             self.bad("spots.t_end", 'must be > 0 when spots.mode = "transient"', s["t_end"])
+        if "rho_max" in s and s["mode"] != "transient":
+            self.bad("spots.rho_max", 'interacting spots need spots.mode = "transient" '
+                     "(no steady solver; run to a late spots.t_end)", s["rho_max"])
+        for key in ("flux", "diffusion_scaling", "frames"):
+            if key in s and "rho_max" not in s:
+                self.bad(f"spots.{key}", "is only used with spots.rho_max (interacting "
+                         "spots); set spots.rho_max or remove it", s[key])
+        if o.get("noise") is not None and s["mode"] != "transient":
+            self.bad("orifice.noise", 'a random rate needs spots.mode = "transient"; '
+                     "remove it for a steady run", o["noise"])
         if s["mode"] == "steady" and s["t_end"] != 0:
             self.bad("spots.t_end", 'is only used when spots.mode = "transient"; '
                      'set it to 0 or remove it', s["t_end"])

@@ -60,6 +60,10 @@ class Spots:
     b_par: Coefficient = 0.0
     mode: str = "steady"
     t_end: float = 0.0
+    #: interacting spots (spotpde.traffic): maximum density, None = independent spots
+    rho_max: float | None = None
+    flux: str = "greenshields"
+    diffusion_scaling: str = "fixed"
 
     @property
     def D_perp(self) -> Coefficient:

@@ -95,8 +95,14 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
         snapshots = spot_density.transient(grid, orifice, spots, float(snap_times[-1]),
                                            times=snap_times,
                                            progress=_stage(progress, "spot density"))
+    interacting = None        # spots.rho_max: space-time frames and rates (spotpde.traffic)
+    if spots.rho_max is not None:
+        interacting = importlib.import_module("spotpde.traffic").solve_case(
+            case, progress=_stage(progress, "spot density"))
     if snapshots is not None and snap_times[-1] == spots.t_end:
         rho_s = snapshots[-1]
+    elif interacting is not None:
+        rho_s = interacting.rho_s
     else:
         rho_s = spot_density.solve(grid, orifice, spots,
                                    progress=_stage(progress, "spot density"))
@@ -153,7 +159,10 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
     }
     if case.source is not None:
         attrs["case_file"] = str(case.source)
-    return make_dataset(grid, out, times=times, attrs=attrs)
+    ds = make_dataset(grid, out, times=times, attrs=attrs)
+    if interacting is not None:
+        ds = importlib.import_module("spotpde.traffic").add_outputs(ds, case, interacting)
+    return ds
 
 
 def particle_fields(case: Case, rho_s: np.ndarray) -> dict[str, np.ndarray]:

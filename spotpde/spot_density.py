@@ -17,6 +17,8 @@ steady, D_par > 0,     finite volumes + sparse LU       ``O(h**2)``, outflow ``Q
 coefficients varying   (:mod:`spotpde._elliptic`)       round-off
 transient              same finite volumes, BDF2        ``O(h**2 + dt**2)``
                        (:mod:`spotpde._transient`)
+transient, rho_max     MUSCL + demand-supply Godunov    ``O(h**2)`` smooth, ``O(h)``
+(interacting spots)    flux, SSP-RK2 (``traffic``)      L1 at shocks; 0 <= rho <= rho_max
 transient,             py-pde adaptive Runge-Kutta on   cross-check; explicit, so small
 ``method="py-pde"``    the same operator (``_pde``)     grids only
 =====================  ===============================  ==================================
@@ -147,6 +149,9 @@ def steady(grid: Grid, orifice: Orifice, spots: Spots, progress: Progress = None
     """
     validate(grid, spots)
     validate_orifice(grid, orifice)
+    if spots.rho_max is not None:
+        raise CaseError('spots.rho_max: interacting spots have no steady solver; use '
+                        'spots.mode = "transient" (spotpde.traffic)')
     Q0 = _constant_rate(orifice)
     g, (v, b, b_par), crop = _pad(grid, spots)
     if _is_uniform(b) and _is_uniform(b_par) and (_is_zero(b_par) or _is_uniform(v)):
@@ -203,6 +208,11 @@ def transient(grid: Grid, orifice: Orifice, spots: Spots, t_end: float, times=No
     validate_orifice(grid, orifice)
     if not (np.isfinite(t_end) and t_end > 0):
         raise CaseError(f"spots.t_end: must be > 0 for a transient run, got {t_end!r}")
+    if spots.rho_max is not None:          # interacting spots: the nonlinear solver
+        from . import traffic
+        res = traffic.transient(grid, orifice, spots, t_end, times, rho0=rho0, dt=dt,
+                                progress=progress, full_output=full_output)
+        return {**res, "inflow": res["injected"]} if full_output else res
     frame_times = np.array([t_end], float) if times is None else np.sort(np.asarray(times, float))
     if frame_times.size and (frame_times[0] < 0 or frame_times[-1] > t_end * (1 + 1e-12)):
         raise CaseError(f"spots.t_end: frame times must lie in [0, {t_end}]")
