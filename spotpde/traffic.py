@@ -289,7 +289,7 @@ def plot_space_time(ds, variable: str = "free_volume_t", x: float | None = None,
     ax = ax if ax is not None else fig.axes[0]
     t, z = da["t_s"].values, da["z"].values
     m = ax.pcolormesh(t, z, da.values.T, shading="auto", cmap="viridis")
-    fig.colorbar(m, ax=ax, label=da.attrs.get("long_name", variable)[:40])
+    fig.colorbar(m, ax=ax, label=f"{variable} ({da.attrs.get('units', '?')})")
     if characteristics and "rho_max" in ds.attrs:
         rho = space_time(ds, "rho_s_t", x).values
         late = rho[len(rho) // 2:]
