@@ -333,6 +333,9 @@ def estimate_bytes(data: Mapping, frames_in_memory: bool = True) -> int:
             n = tracer["snapshots"]
             n_tracer += ((auto_snapshots(data) if n == "auto" else n) + 1 + 3 * n_fields
                          + 5 * (n_fields + 2 * dims + 4))
+    if data["spots"].get("rho_max") is not None:
+        # interacting spots: space-time frames of rho_s and free_volume, solver stages
+        n_tracer += 2 * (data["spots"].get("frames") or 101) + 8
     total = 8.0 * cells * (n_fields + scratch + n_tracer)
     total += 16.0 * padded * 6 + 8.0 * stencil * 2
     return int(min(total, 1e30))
