@@ -368,3 +368,32 @@ def test_negative_noise_amplitude_exit_2(tmp_path):
     assert proc.returncode == 2
     assert proc.stderr.count("\n") == 1 and "orifice.noise.amplitude" in proc.stderr
     assert not (tmp_path / "out.nc").exists()
+
+
+def test_steady_with_rho_max_exit_2(tmp_path):
+    p = _case(tmp_path, mode="steady", t_end=0.0)
+    text = p.read_text().replace("noise = {", "# noise = {").replace("frames = 11", "")
+    p.write_text(text)
+    proc = subprocess.run([sys.executable, "-m", "spotpde.cli", "check", str(p)],
+                          capture_output=True, text=True, cwd=tmp_path, env=ENV)
+    assert proc.returncode == 2
+    assert proc.stderr.startswith("spots.rho_max:") and proc.stderr.count("\n") == 1
+
+
+def test_tracer_follows_interacting_spots(tmp_path):
+    """With a tracer, the coefficient snapshots come from the nonlinear solver: the
+    tracer in a saturated column moves with the fields of the capped density, and its
+    probability is conserved (inside + out through the orifice)."""
+    import spotpde
+
+    text = _case(tmp_path, t_end=12.0).read_text() + (
+        "\n[tracer]\nstart = { x = 0.0, z = 6.0, width = 1.0 }\nt_end = 12.0\nframes = 3\n")
+    (tmp_path / "tr.toml").write_text(text)
+    case = spotpde.load_case(tmp_path / "tr.toml")
+    ds = spotpde.run(case)
+    snaps = spot_density.transient(case.grid, case.orifice, case.spots, 12.0,
+                                   times=case.snapshot_times())
+    np.testing.assert_allclose(snaps[-1], ds["rho_s"], rtol=0, atol=1e-15)
+    assert float(snaps.max()) <= 0.5
+    total = ds["mass"].values + ds["outflow"].values
+    np.testing.assert_allclose(total, 1.0, atol=1e-9)
