@@ -255,13 +255,23 @@ def add_outputs(ds, case, result: CaseResult):
 
 
 # -- space-time diagrams -------------------------------------------------------------------
-def space_time(ds, variable: str = "free_volume_t", x: float | None = None):
-    """A ``(t_s, z)`` slice of a frame variable along the vertical line at ``x`` (3D: and
-    the middle of ``y``); default ``x`` = the middle of the domain (the axis)."""
+def space_time(ds, variable: str = "free_volume_t", x: float | None = None,
+               z: float | None = None):
+    """A space-time slice of a frame variable.
+
+    Default: ``(t_s, z)`` along the vertical line at ``x`` (3D: and the middle of ``y``),
+    ``x`` defaulting to the middle of the domain (the axis). With ``z``: ``(t_s, x)``
+    across the silo at the height nearest ``z`` (3D: the middle of ``y``).
+    """
     if variable not in ds:
         raise ValueError(f"variable: {variable!r} is not in the Dataset (an interacting-spot "
                          "run has rho_s_t and free_volume_t)")
     da = ds[variable]
+    if z is not None:
+        da = da.sel(z=float(z), method="nearest")
+        if "y" in da.dims:
+            da = da.isel(y=da.sizes["y"] // 2)
+        return da
     xs = ds["x"].values
     x0 = 0.5 * (xs[0] + xs[-1]) if x is None else float(x)
     da = da.sel(x=x0, method="nearest")

@@ -340,6 +340,10 @@ def test_run_dataset_variables(tmp_path):
     np.testing.assert_allclose(ds["rho_s_t"][-1], ds["rho_s"], rtol=0, atol=0)
     assert abs(ds.attrs["mass_budget_error"]) < 1e-12
     assert float(ds["rho_s_t"].max()) <= 0.5
+    axis = traffic.space_time(ds, "free_volume_t")
+    across = traffic.space_time(ds, "rho_s_t", z=6.0)
+    assert axis.dims == ("t_s", "z") and across.dims == ("t_s", "x")
+    np.testing.assert_allclose(axis[-1], ds["free_volume"].sel(x=0.25), rtol=1e-12)
     again = spotpde.run(spotpde.load_case(_case(tmp_path)))
     np.testing.assert_array_equal(ds["requested_rate"], again["requested_rate"])
 
