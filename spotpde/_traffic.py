@@ -64,9 +64,13 @@ from typing import Callable
 
 import numpy as np
 
+from numba import njit
+
 from .errors import NumericalError
 
 LIMITERS = ("mc", "vanleer", "minmod")
+_LIMITER_CODE = {"mc": 0, "vanleer": 1, "minmod": 2}
+_FLUX_CODE = {"greenshields": 0, "triangular": 1}
 
 
 @dataclass(frozen=True)
@@ -159,6 +163,109 @@ def _slopes(rho: np.ndarray, limiter: str) -> np.ndarray:
     return s
 
 
+@njit(cache=True, inline="always")
+def _g(y, kind):
+    if kind == 0:
+        return y * (1.0 - y)
+    return min(y, 1.0 - y)
+
+
+@njit(cache=True, inline="always")
+def _q(r, v, rho_max, kind):
+    if kind < 0:                                  # rho_max = inf: free flux
+        return v * r
+    return v * rho_max * _g(r / rho_max, kind)
+
+
+@njit(cache=True, inline="always")
+def _slope(a, b, c, lim):
+    dl = b - a
+    dr = c - b
+    if dl * dr <= 0.0:
+        return 0.0
+    al, ar = abs(dl), abs(dr)
+    if lim == 2:
+        mag = min(al, ar)
+    elif lim == 1:
+        mag = 2.0 * al * ar / (al + ar)
+    else:
+        mag = min(2.0 * al, 2.0 * ar, 0.5 * (al + ar))
+    return mag if dr > 0 else -mag
+
+
+@njit(cache=True)
+def _vertical_flux_kernel(rho, vf, rho_max, y_c, kind, lim, floor_request, F):
+    """Fused MUSCL + demand-supply fluxes on ``rho`` of shape ``(nz, n_h)`` into ``F``
+    ``(nz + 1, n_h)``; the same arithmetic as :meth:`Solver.vertical_flux_numpy`."""
+    nz, nh = rho.shape
+    rc = y_c * rho_max
+    for j in range(nh):                            # floor: min(request, supply of cell 0)
+        r0 = rho[0, j]
+        if kind < 0:
+            sup = np.inf
+        elif r0 <= rc:
+            sup = _q(rc, vf[0, j], rho_max, kind)
+        else:
+            sup = _q(r0, vf[0, j], rho_max, kind)
+        F[0, j] = min(floor_request[j], sup)
+    s_prev = np.zeros(nh)                          # slopes of row k (zero at boundaries)
+    s_next = np.zeros(nh)
+    for k in range(nz - 1):
+        for j in range(nh):
+            s_next[j] = 0.0
+            if k + 2 < nz:
+                s_next[j] = _slope(rho[k, j], rho[k + 1, j], rho[k + 2, j], lim)
+            lo = rho[k, j] + 0.5 * s_prev[j]
+            hi = rho[k + 1, j] - 0.5 * s_next[j]
+            v = vf[k + 1, j]
+            if kind < 0:
+                F[k + 1, j] = v * lo
+            else:
+                dem = _q(min(lo, rc), v, rho_max, kind)
+                sup = _q(rc, v, rho_max, kind) if hi <= rc else _q(hi, v, rho_max, kind)
+                F[k + 1, j] = min(dem, sup)
+        s_prev, s_next = s_next, s_prev
+    for j in range(nh):                            # top: demand of the top cell
+        rt = rho[nz - 1, j]
+        F[nz, j] = _q(rt if kind < 0 else min(rt, rc), vf[nz, j], rho_max, kind)
+
+
+@njit(cache=True, inline="always")
+def _mob(a, b, rho_max, kind, speed):
+    if not speed or kind < 0:
+        return 1.0
+    y = 0.5 * (a + b) / rho_max
+    if kind == 0:
+        return 1.0 - y
+    return 1.0 if y <= 0.5 else (1.0 - y) / y
+
+
+@njit(cache=True)
+def _diffusion_kernel(rho, Dz, Dp, rho_max, kind, speed, h2, out):
+    """Add the pairwise diffusive exchanges of :meth:`Solver.rhs` to ``out``; arrays
+    ``(nz, ny, nx)`` (``ny = 1`` in 2D)."""
+    nz, ny, nx = rho.shape
+    for k in range(nz):
+        for j in range(ny):
+            for i in range(nx):
+                r = rho[k, j, i]
+                if k + 1 < nz:
+                    E = (Dz[k, j, i] * r - Dz[k + 1, j, i] * rho[k + 1, j, i]) \
+                        * _mob(r, rho[k + 1, j, i], rho_max, kind, speed) / h2
+                    out[k, j, i] -= E
+                    out[k + 1, j, i] += E
+                if j + 1 < ny:
+                    E = (Dp[k, j, i] * r - Dp[k, j + 1, i] * rho[k, j + 1, i]) \
+                        * _mob(r, rho[k, j + 1, i], rho_max, kind, speed) / h2
+                    out[k, j, i] -= E
+                    out[k, j + 1, i] += E
+                if i + 1 < nx:
+                    E = (Dp[k, j, i] * r - Dp[k, j, i + 1] * rho[k, j, i + 1]) \
+                        * _mob(r, rho[k, j, i + 1], rho_max, kind, speed) / h2
+                    out[k, j, i] -= E
+                    out[k, j, i + 1] += E
+
+
 class Solver:
     """Right-hand side, boundary fluxes and time step of the nonlinear spot equation.
 
@@ -195,6 +302,11 @@ class Solver:
         self.request = request
         self.area = self.h ** (len(self.shape) - 1)
         self.vf = np.concatenate([self.v[:1], 0.5 * (self.v[:-1] + self.v[1:]), self.v[-1:]])
+        self.backend = "numba"       # or "numpy": the same fluxes, array by array
+        self._kind = -1 if np.isinf(self.rho_max) else _FLUX_CODE[flux.name]
+        self._shape3 = (self.shape[0], 1, self.shape[1]) if len(self.shape) == 2 else self.shape
+        self._Dz3 = np.ascontiguousarray(self.Dz).reshape(self._shape3)
+        self._Dp3 = np.ascontiguousarray(self.Dp).reshape(self._shape3)
         self.diffusive = bool(np.any(self.Dp > 0) or np.any(self.Dz > 0))
 
     # -- fluxes ---------------------------------------------------------------------
@@ -209,6 +321,21 @@ class Solver:
 
     def vertical_flux(self, rho: np.ndarray, t: float) -> np.ndarray:
         """Upward advective flux through the ``nz + 1`` horizontal faces (floor first)."""
+        if self.backend == "numpy" or self.shape[0] < 3:
+            return self.vertical_flux_numpy(rho, t)
+        nz = self.shape[0]
+        nh = rho.size // nz
+        F = np.empty((nz + 1,) + self.shape[1:])
+        request = np.broadcast_to(np.asarray(self.request(t), float), self.shape[1:])
+        _vertical_flux_kernel(np.ascontiguousarray(rho).reshape(nz, nh),
+                              np.ascontiguousarray(self.vf).reshape(nz + 1, nh),
+                              self.rho_max, self.flux.y_c, self._kind,
+                              _LIMITER_CODE[self.limiter],
+                              np.ascontiguousarray(request).reshape(nh), F.reshape(nz + 1, nh))
+        return F
+
+    def vertical_flux_numpy(self, rho: np.ndarray, t: float) -> np.ndarray:
+        """:meth:`vertical_flux` in vectorised NumPy (the reference of the numba kernel)."""
         F = np.empty((self.shape[0] + 1,) + self.shape[1:])
         s = _slopes(rho, self.limiter) if self.shape[0] > 2 else np.zeros_like(rho)
         lo = rho[:-1] + 0.5 * s[:-1]
@@ -229,7 +356,11 @@ class Solver:
         boundary rates (spots per unit time) it implies."""
         F = self.vertical_flux(rho, t)
         out = -(F[1:] - F[:-1]) / self.h
-        if self.diffusive:
+        if self.diffusive and self.backend == "numba":
+            as3 = lambda a: np.ascontiguousarray(a).reshape(self._shape3)
+            _diffusion_kernel(as3(rho), self._Dz3, self._Dp3, self.rho_max, self._kind,
+                              self.scaling == "speed", self.h * self.h, out.reshape(self._shape3))
+        elif self.diffusive:
             h2 = self.h * self.h
             for ax in range(len(self.shape)):
                 D = self.Dz if ax == 0 else self.Dp
