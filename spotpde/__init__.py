@@ -23,6 +23,7 @@ _SUBMODULES = (
     "kinematic", "coefficients", "comparison", "tracer", "void", "layers", "cases", "io",
     "pipeline",
     "plotting", "montecarlo", "sweep", "cli",
+    "traffic", "noise",          # interacting spots (spots.rho_max), random orifice rate
 )
 _FUNCTIONS = {
     "load_case": "cases",
