@@ -393,7 +393,7 @@ class Solver:
 def integrate(solver: Solver, t_end: float, times: np.ndarray, rate: Callable[[float], float],
               rho0: np.ndarray | None = None, cfl: float = 0.9, dt: float | None = None,
               progress: Callable[[float], None] | None = None) -> dict:
-    """SSP-RK2 from ``t = 0`` to ``t_end`` with frames at ``times`` (steps land on them).
+    """SSP-RK2 from ``t = 0`` to ``t_end`` in equal steps, frames at ``times``.
 
     Args:
         solver: the :class:`Solver`.
@@ -402,7 +402,8 @@ def integrate(solver: Solver, t_end: float, times: np.ndarray, rate: Callable[[f
         rate: ``Q0(t)`` (spots per unit time), reported as the requested rate.
         rho0: initial density (default 0: an empty silo).
         cfl: fraction of :meth:`Solver.max_dt` (<= 1 keeps the bounds).
-        dt: explicit step (default ``solver.max_dt(cfl)``).
+        dt: largest explicit step (default ``solver.max_dt(cfl)``); the step used is
+            ``t_end / ceil(t_end / dt)``.
         progress: called with the fraction done.
 
     Returns:
@@ -412,49 +413,62 @@ def integrate(solver: Solver, t_end: float, times: np.ndarray, rate: Callable[[f
         to each frame, Heun weights) and ``mass`` (``sum(rho) h**dims``); ``dt``, ``steps``.
     """
     shape = solver.shape
+    if not 0 < cfl <= 1:
+        raise ValueError(f"cfl: must be in (0, 1] (bounds and stability), got {cfl!r}")
     dt_max = solver.max_dt(cfl) if dt is None else float(dt)
+    if not 0 < dt_max <= solver.max_dt(1.0) * (1 + 1e-12):
+        raise ValueError(f"dt: must be in (0, {solver.max_dt(1.0):.6g}], the explicit "
+                         f"bound-preserving step, got {dt!r}")
     rho = np.zeros(shape) if rho0 is None else np.array(rho0, dtype=float).reshape(shape)
     cell = solver.h ** len(shape)
+    # a uniform step that does not depend on the frame times: the state at t_end is the
+    # same whichever frames are asked for; frames between steps are linear interpolants
+    # (second order; convex combinations, so the bounds and the budget hold for them)
+    steps = max(1, int(np.ceil(t_end / dt_max - 1e-9)))
+    step = t_end / steps
     nf = len(times)
     res = {k: np.empty(nf) for k in ("injected", "requested", "outflow", "injected_total",
                                      "requested_total", "outflow_total", "mass")}
     frames = np.empty((nf,) + shape)
     totals = np.zeros(3)
-    t, steps, j = 0.0, 0, 0
-    every = max(1, int(t_end / dt_max / 200))
-
-    def record(j, rho, t):
-        frames[j] = rho
-        _, inj, out = solver.rhs(rho, t)
-        res["injected"][j], res["outflow"][j] = inj, out
-        res["requested"][j] = rate(t)
-        res["injected_total"][j], res["requested_total"][j], res["outflow_total"][j] = totals
-        res["mass"][j] = rho.sum() * cell
-
+    every = max(1, steps // 200)
     tol = 1e-12 * max(1.0, t_end)
-    while j < nf and times[j] <= t + tol:
-        record(j, rho, t)
-        j += 1
-    while j < nf:
-        step = min(dt_max, times[j] - t)
+    j = 0
+
+    def record(t_old, rho_old, tot_old, t_new, rho_new, tot_new):
+        nonlocal j
+        while j < nf and times[j] <= t_new + tol:
+            w = 1.0 if t_new == t_old else min(1.0, max(0.0, (times[j] - t_old) / (t_new - t_old)))
+            r = (1.0 - w) * rho_old + w * rho_new
+            frames[j] = r
+            _, inj, out = solver.rhs(r, times[j])
+            res["injected"][j], res["outflow"][j] = inj, out
+            res["requested"][j] = rate(times[j])
+            tot = (1.0 - w) * tot_old + w * tot_new
+            res["injected_total"][j], res["requested_total"][j], res["outflow_total"][j] = tot
+            res["mass"][j] = r.sum() * cell
+            j += 1
+
+    record(0.0, rho, totals, 0.0, rho, totals)
+    for n in range(steps):
+        t = n * step
         k1, i1, o1 = solver.rhs(rho, t)
         r1 = rho + step * k1
         k2, i2, o2 = solver.rhs(r1, t + step)
-        rho = 0.5 * (rho + r1 + step * k2)
-        totals += 0.5 * step * np.array([i1 + i2, rate(t) + rate(t + step), o1 + o2])
-        t = times[j] if times[j] - (t + step) <= tol else t + step
-        steps += 1
-        if steps % every == 0:
+        new = 0.5 * (rho + r1 + step * k2)
+        new_totals = totals + 0.5 * step * np.array([i1 + i2, rate(t) + rate(t + step),
+                                                     o1 + o2])
+        t_new = t_end if n == steps - 1 else (n + 1) * step
+        record(t, rho, totals, t_new, new, new_totals)
+        rho, totals = new, new_totals
+        if (n + 1) % every == 0:
             if not np.all(np.isfinite(rho)):
-                raise NumericalError(f"interacting spot density is not finite at t = {t:g}")
+                raise NumericalError(f"interacting spot density is not finite at t = {t_new:g}")
             if progress is not None:
-                progress(min(1.0, t / t_end))
-        while j < nf and times[j] <= t + tol:
-            record(j, rho, t)
-            j += 1
+                progress((n + 1) / steps)
     if not np.all(np.isfinite(frames)):
         raise NumericalError("interacting spot density is not finite")
     if progress is not None:
         progress(1.0)
-    return {"frames": frames, "times": np.asarray(times, float), **res, "dt": dt_max,
+    return {"frames": frames, "times": np.asarray(times, float), **res, "dt": step,
             "steps": steps}

@@ -99,10 +99,10 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
     if spots.rho_max is not None:
         interacting = importlib.import_module("spotpde.traffic").solve_case(
             case, progress=_stage(progress, "spot density"))
-    if snapshots is not None and snap_times[-1] == spots.t_end:
-        rho_s = snapshots[-1]
-    elif interacting is not None:
+    if interacting is not None:          # the same solve as its frames rho_s_t
         rho_s = interacting.rho_s
+    elif snapshots is not None and snap_times[-1] == spots.t_end:
+        rho_s = snapshots[-1]
     else:
         rho_s = spot_density.solve(grid, orifice, spots,
                                    progress=_stage(progress, "spot density"))
