@@ -12,8 +12,11 @@ This module collects what the comparisons need (docs/montecarlo.md, section 9):
 
 * :func:`replicas` runs a function over seeds (sequentially, or as Dask tasks);
   :func:`replica_mean` gives the mean and its standard error over replicas.
-* :func:`zscore_spread` checks that z-scores ``(estimate - exact) / SE`` have unit
-  spread (a chi-square test), which is how the standard errors themselves are tested.
+  :func:`t_limit` is the Student-t multiple of the standard error for a check with
+  ``R`` replicas.
+* :func:`se_calibration` compares a run's own standard errors with the scatter between
+  replicas, and :func:`zscore_spread` checks that z-scores ``(estimate - exact) / SE``
+  have unit spread (chi-square tests): this is how the standard errors are tested.
 * :func:`discard` drops a run's first probe batches (the warm-up while the spots fill
   the silo); :func:`positions_at` returns tracked positions at a snapshot time.
 * :func:`particle_density` turns particle positions into a tracer density ``P0`` on the
