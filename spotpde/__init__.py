@@ -22,7 +22,7 @@ _SUBMODULES = (
     "grid", "parameters", "kernels", "convolution", "orifice", "spot_density",
     "kinematic", "coefficients", "comparison", "tracer", "void", "layers", "cases", "io",
     "pipeline",
-    "plotting", "montecarlo", "sweep", "cli",
+    "plotting", "montecarlo", "sweep", "cli", "pair",
 )
 _FUNCTIONS = {
     "load_case": "cases",
