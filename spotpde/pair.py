@@ -351,7 +351,7 @@ def solve(tensor, contact=1.0, separation=2.0, start=None, *, spacing=None, fram
     if not np.isfinite(mean) or mean <= 0:
         from .errors import NumericalError
         raise NumericalError("the pair never leaves the cage: B vanishes on the way out")
-    dt = mean / steps_per_mean
+    dt = (mean if fall_end is None else min(mean, float(fall_end))) / steps_per_mean
     A = (sp.identity(n, format="csc") - dt * Q.T.tocsc()).tocsc()
     lu = spla.splu(A)
     r2 = (mesh.cx**2 + mesh.cz**2)[act]
