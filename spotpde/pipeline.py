@@ -153,7 +153,10 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
     }
     if case.source is not None:
         attrs["case_file"] = str(case.source)
-    return make_dataset(grid, out, times=times, attrs=attrs)
+    ds = make_dataset(grid, out, times=times, attrs=attrs)
+    if case.data.get("pair") is not None:     # cage breaking at a point (spotpde.pair)
+        ds = importlib.import_module("spotpde.pair").add_to_result(case, ds)
+    return ds
 
 
 def particle_fields(case: Case, rho_s: np.ndarray) -> dict[str, np.ndarray]:
