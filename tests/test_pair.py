@@ -211,3 +211,67 @@ def test_passage_diffusivity_lengthens_the_cage_at_midpoint_rule():
                              Z=np.zeros(3))
     Bm = pair.mean_field_tensor(DISK, 1.3, 0.0, X=np.array([1.0, 1.5, 2.0]), Z=np.zeros(3))
     np.testing.assert_allclose(B["xx"] / Bm["xx"], [0.20, 0.26, 0.30], atol=0.02)
+
+
+# -- the [pair] table of a case ---------------------------------------------------------
+UNIFORM_CASE = {
+    "domain": {"x": [-5.0, 5.0], "z": [0.0, 10.0], "spacing": 0.5},
+    "orifice": {"width": 10.0},                 # the whole floor: uniform flow
+    "spots": {"b": 1.3},
+    "kernel": {"shape": "gaussian", "size": 1.0, "volume": 0.05},
+    "pair": {"x": 0.0, "z": 6.0, "spacing": 0.125},
+}
+
+
+def test_case_pair_in_uniform_flow_equals_the_library_call():
+    import spotpde
+
+    ds = spotpde.run(UNIFORM_CASE)
+    k = Gaussian(sigma=1.0, volume=0.05)
+    b_p = {key: ds.attrs[f"pair_b_p_{key}"] for key in ("xx", "xz", "zz")}
+    ref = pair.cage_breaking(k, 1.3, rule=0.5, diffusivity="mean-field", spacing=0.125,
+                             b_p=b_p)
+    uni = pair.cage_breaking(k, 1.3, rule=0.5, diffusivity="mean-field", spacing=0.125)
+    # local b_p = D_xx / |u_z| = b V2 / V1 in uniform flow (up to the fields' sampling of
+    # the kernel on the 0.5 d grid); no vertical diffusion with b_par = 0
+    assert b_p["xx"] == pytest.approx(_bp(k, 1.3), rel=1e-3)
+    assert abs(b_p["xz"]) < 1e-9 * b_p["xx"] and b_p["zz"] == 0.0
+    assert ds.attrs["pair_mean_fall"] == pytest.approx(ref.attrs["mean_fall"], rel=1e-9)
+    assert ds.attrs["pair_mean_fall"] == pytest.approx(uni.attrs["mean_fall"], rel=1e-3)
+    assert ds["pair_survival"].dims == ("pair_fall",)
+    for name in ("pair_survival", "pair_msd", "pair_P", "pair_B_xx"):
+        assert {"units", "long_name"} <= set(ds[name].attrs)
+
+
+@pytest.mark.parametrize("table, key", [
+    ({"contact": 2.0, "separation": 2.0}, "pair.separation"),
+    ({"start": {"x": 0.5, "z": 0.0}}, "pair.start: is inside the core"),
+    ({"start": {"x": 1.5, "z": 1.5}}, "pair.start: is outside the cage"),
+    ({"contact": -1.0}, "pair.contact"),
+    ({"spacng": 0.1}, "did you mean 'spacing'"),
+    ({"x": 50.0}, "pair.x"),
+])
+def test_case_bad_pair_table_names_the_key(table, key):
+    import spotpde
+
+    raw = {k: dict(v) for k, v in UNIFORM_CASE.items()}
+    raw["pair"].update(table)
+    with pytest.raises(spotpde.CaseError) as err:
+        spotpde.load_case(raw)
+    assert any(key in line for line in err.value.problems), err.value.problems
+
+
+def test_cli_bad_pair_exits_2_without_output(tmp_path):
+    import subprocess
+    import sys
+
+    case = tmp_path / "bad.toml"
+    out = tmp_path / "out.nc"
+    case.write_text('[pair]\nx = 0.0\nz = 10.0\nstart = { x = 0.5, z = 0.0 }\n'
+                    f'[output]\npath = "{out}"\n')
+    proc = subprocess.run([sys.executable, "-m", "spotpde.cli", "run", str(case)],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [
+        "pair.start: is inside the core: |start| = 0.5 < pair.contact = 1.0"]
+    assert not out.exists()
