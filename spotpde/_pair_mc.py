@@ -30,7 +30,7 @@ from . import _mc_kernels as K
 
 @njit(cache=True)
 def _replicas(n, seed, x0, z0, contact, separation, shape, size, size_v, amp, reach_h,
-              reach_v, V1, b, lam, step, max_fall):
+              reach_v, V1, b, lam, step, max_fall, conormal, angles, cxx, cxz, czz):
     np.random.seed(seed)
     out = np.empty(n)
     sig = math.sqrt(2.0 * b * step)
@@ -82,10 +82,26 @@ def _replicas(n, seed, x0, z0, contact, separation, shape, size, size_v, amp, re
                 rx, rz = x2 - x1, z2 - z1
                 r = math.sqrt(rx * rx + rz * rz)
                 if r < contact:
-                    f = (2.0 * contact - r) / r
                     cx, cz = 0.5 * (x1 + x2), 0.5 * (z1 + z2)
-                    x1, z1 = cx - 0.5 * f * rx, cz - 0.5 * f * rz
-                    x2, z2 = cx + 0.5 * f * rx, cz + 0.5 * f * rz
+                    if conormal:
+                        # push back along B n (B at contact, tabulated in angle)
+                        nx, nz = rx / r, rz / r
+                        a = math.atan2(abs(nz), abs(nx))
+                        bxx = np.interp(a, angles, cxx)
+                        bzz = np.interp(a, angles, czz)
+                        bxz = np.interp(a, angles, cxz) * (1.0 if nx * nz >= 0 else -1.0)
+                        vx, vz = bxx * nx + bxz * nz, bxz * nx + bzz * nz
+                        vn = vx * nx + vz * nz
+                        d = 2.0 * (contact - r) / vn
+                        rx, rz = rx + d * vx, rz + d * vz
+                        if rx * rx + rz * rz < contact * contact:   # safeguard: radial
+                            f = (2.0 * contact - r) / r
+                            rx, rz = f * (x2 - x1), f * (z2 - z1)
+                    else:
+                        f = (2.0 * contact - r) / r
+                        rx, rz = f * rx, f * rz
+                    x1, z1 = cx - 0.5 * rx, cz - 0.5 * rz
+                    x2, z2 = cx + 0.5 * rx, cz + 0.5 * rz
                 elif r >= separation:
                     escaped = True
                     break
@@ -102,7 +118,7 @@ def _replicas(n, seed, x0, z0, contact, separation, shape, size, size_v, amp, re
 
 
 def cage_breaking_mc(kernel, b, rule=0.5, *, contact=1.0, separation=2.0, start=None,
-                     replicas=200, seed=0, step=0.05, max_fall=np.inf):
+                     replicas=200, seed=0, step=0.05, max_fall=np.inf, contact_tensor=None):
     """Falls (in d) at which pairs first separate to ``separation``, one per replica.
 
     Args:
@@ -115,6 +131,12 @@ def cage_breaking_mc(kernel, b, rule=0.5, *, contact=1.0, separation=2.0, start=
         seed: seed of numba's generator.
         step: spot step ``Delta`` in d.
         max_fall: censoring fall (``inf`` in the result for pairs still caged).
+        contact_tensor: ``None``: the hard core reflects the separation radially (a
+            normal contact force). Or ``(angles, B)``: ``B`` a dict ``{"xx","xz","zz"}`` of
+            values at ``|r| = contact`` for ``angles`` in ``[0, pi/2]`` (above the
+            horizontal): the overshoot is pushed back along ``B n`` (conormal
+            reflection), the reflection whose density obeys the zero-Ito-flux condition
+            of ``spotpde.pair`` (docs/pair.md, section 3).
 
     Returns:
         ndarray of falls in d, shape ``(replicas,)``.
@@ -127,9 +149,16 @@ def cage_breaking_mc(kernel, b, rule=0.5, *, contact=1.0, separation=2.0, start=
         raise ValueError(f"b must be >= 0, got {b}")
     kp = kernel_params(kernel)
     x0, z0 = (contact, 0.0) if start is None else (float(start[0]), float(start[1]))
+    if contact_tensor is None:
+        angles, tab = np.array([0.0, 1.0]), {k: np.ones(2) for k in ("xx", "xz", "zz")}
+    else:
+        angles, tab = contact_tensor
+    angles = np.ascontiguousarray(angles, dtype=float)
+    cxx, cxz, czz = (np.ascontiguousarray(tab[k], dtype=float) for k in ("xx", "xz", "zz"))
     return _replicas(int(replicas), int(seed), x0, z0, float(contact), float(separation),
                      kp.shape, kp.size, kp.size_v, kp.amp, kp.reach[0], kp.reach[1],
-                     kp.V1, float(b), float(rule), float(step), float(max_fall))
+                     kp.V1, float(b), float(rule), float(step), float(max_fall),
+                     contact_tensor is not None, angles, cxx, cxz, czz)
 
 
 @njit(cache=True)
