@@ -275,3 +275,78 @@ def test_cli_bad_pair_exits_2_without_output(tmp_path):
     assert proc.stderr.strip().splitlines() == [
         "pair.start: is inside the core: |start| = 0.5 < pair.contact = 1.0"]
     assert not out.exists()
+
+
+# -- Monte Carlo of two particles in the discrete model ------------------------------------
+RADII = np.array([1.0, 1.5, 2.0])
+ANGLES = np.array([0.0, np.pi / 4, np.pi / 2])
+
+
+def _probe_table(kernel, rule, spots, seed=11):
+    from spotpde import _pair_mc
+
+    R, A = np.meshgrid(RADII, ANGLES, indexing="ij")
+    tab = _pair_mc.probe_tensor(kernel, 1.3, rule, (R * np.cos(A)).ravel(),
+                                (R * np.sin(A)).ravel(), spots=spots, seed=seed)
+    table = {k: tab[k].reshape(3, 3) for k in ("xx", "xz", "zz")}
+    rel_se = max(float(np.max(tab[k + "_se"] / np.abs(tab[k]))) for k in ("xx", "zz"))
+    return table, rel_se
+
+
+def test_frozen_pair_tensor_rule_one_near_mean_field_rule_half_far_below():
+    k = Uniform(radius=2.5, height=0.01)
+    mf = pair.mean_field_tensor(k, 1.3, 0.0, X=1.5, Z=0.0)["xx"]
+    from spotpde import _pair_mc
+
+    one = _pair_mc.probe_tensor(k, 1.3, 1.0, [1.5], [0.0], spots=40_000, seed=1)
+    half = _pair_mc.probe_tensor(k, 1.3, 0.5, [1.5], [0.0], spots=40_000, seed=2)
+    # rule 1: mean field up to O(w) (particles move while the spot passes: measured
+    # 0.93 at w = 0.03); rule 1/2: passage correlations, about 0.3 of it
+    assert abs(one["xx"][0] / mf - 1) < 3 * one["xx_se"][0] / mf + 3 * 0.01
+    assert half["xx"][0] / mf < 0.45
+    # vertical shot noise: a relative vertical diffusion that mean field (b_par = 0) lacks
+    assert one["zz"][0] > 10 * one["zz_se"][0]
+
+
+@pytest.mark.slow
+def test_monte_carlo_cage_breaking_against_the_equation():
+    # Two particles in the discrete model (paper's disk with w = 0.03 to keep it short,
+    # b = 1.3 d, step 0.05 d), 400 independent pairs per rule, start side by side at
+    # contact. The hard core reflects along B n (conormal), the reflection whose density
+    # obeys the zero-Ito-flux condition. Reference: the 2D equation with the discrete
+    # model's own B(r), measured on frozen pairs (3 radii x 3 angles).
+    from spotpde import _pair_mc
+
+    k = Uniform(radius=2.5, height=0.03)
+    mf = pair.cage_breaking(k, 1.3, diffusivity="mean-field").attrs["mean_fall"]
+    means = {}
+    for rule in (1.0, 0.5):
+        table, rel_se = _probe_table(k, rule, spots=40_000)
+        fp = pair.solve(_pair_mc.tabulated_tensor(table, RADII, ANGLES), 1.0, 2.0)["mean_fall"]
+        f = _pair_mc.cage_breaking_mc(k, 1.3, rule=rule, replicas=400, seed=5,
+                                      contact_tensor=(ANGLES, {c: v[0] for c, v in table.items()}))
+        assert np.all(np.isfinite(f))
+        se = f.std(ddof=1) / np.sqrt(len(f))
+        se_fp = rel_se * fp            # the mean fall scales like 1/B
+        assert abs(f.mean() - fp) < 3 * np.hypot(se, se_fp), (rule, f.mean(), se, fp)
+        means[rule] = (f.mean(), se)
+    # rule 1: mean field within the standard error; rule 1/2: far from it
+    assert abs(means[1.0][0] - mf) < 3 * means[1.0][1]
+    assert (means[0.5][0] - mf) / means[0.5][1] > 8
+
+
+@pytest.mark.slow
+def test_monte_carlo_rule_half_agrees_with_passage():
+    pytest.importorskip("spotpde._passage")
+    from spotpde import _pair_mc
+
+    k = Uniform(radius=2.5, height=0.03)
+    ds = pair.cage_breaking(k, 1.3, rule=0.5, diffusivity="passage")
+    mf = pair.cage_breaking(k, 1.3, rule=0.5, diffusivity="mean-field").attrs["mean_fall"]
+    at_contact = pair.relative_tensor(k, 1.3, 0.5, 0.0, "passage", X=np.cos(ANGLES),
+                                      Z=np.sin(ANGLES))
+    f = _pair_mc.cage_breaking_mc(k, 1.3, rule=0.5, replicas=400, seed=7,
+                                  contact_tensor=(ANGLES, at_contact))
+    se = f.std(ddof=1) / np.sqrt(len(f))
+    assert abs(f.mean() - ds.attrs["mean_fall"]) < 3 * se
+    assert (f.mean() - mf) / se > 8
