@@ -63,16 +63,20 @@ __all__ = ["cage_breaking", "relative_tensor", "mean_field_tensor", "mean_fall_1
 # --------------------------------------------------------------------------------------
 # The relative diffusion length tensor
 # --------------------------------------------------------------------------------------
-def _check_kernel_2d(kernel):
-    if getattr(kernel, "dims", None) != 2:
-        raise ValueError(f"kernel must be a 2D spotpde.kernels kernel (dims=2), got {kernel!r}")
+def _check_kernel_2d(kernel, allow_3d=False):
+    dims = getattr(kernel, "dims", None)
+    if dims != 2 and not (allow_3d and dims == 3):
+        need = "a 2D or 3D" if allow_3d else "a 2D"
+        raise ValueError(f"kernel must be {need} spotpde.kernels kernel, got {kernel!r}")
 
 
 def mean_field_tensor(kernel, b, b_par=0.0, X=0.0, Z=0.0, *, b_p=None) -> dict:
     """Mean-field relative diffusion lengths ``B^ab = 2 b_p^ab (1 - C(X, Z))`` in d.
 
     Args:
-        kernel: a 2D kernel (``spotpde.kernels``); ``C`` is ``kernel.correlation_vector``.
+        kernel: a 2D or 3D kernel (``spotpde.kernels``); ``C`` is
+            ``kernel.correlation_vector`` (3D: at ``(X, 0, Z)``, ``X`` the horizontal
+            distance; the kernels are isotropic horizontally).
         b, b_par: spot diffusion lengths (horizontal, vertical) in d, ``>= 0``.
         X, Z: separation components in d (broadcasting arrays).
         b_p: optional single-particle tensor ``{"xx", "xz", "zz"}`` in d replacing
@@ -81,12 +85,13 @@ def mean_field_tensor(kernel, b, b_par=0.0, X=0.0, Z=0.0, *, b_p=None) -> dict:
     Returns:
         dict ``{"xx", "xz", "zz"}`` of arrays (the broadcast shape of X and Z).
     """
-    _check_kernel_2d(kernel)
+    _check_kernel_2d(kernel, allow_3d=True)
     if b_p is None:
         ratio = kernel.V2 / kernel.V1
         b_p = {"xx": b * ratio, "xz": 0.0, "zz": b_par * ratio}
     X, Z = np.broadcast_arrays(np.asarray(X, float), np.asarray(Z, float))
-    one_minus_c = 1.0 - kernel.correlation_vector(X, Z)
+    offsets = (X, Z) if kernel.dims == 2 else (X, np.zeros_like(X), Z)
+    one_minus_c = 1.0 - kernel.correlation_vector(*offsets)
     return {k: 2.0 * b_p[k] * one_minus_c for k in ("xx", "xz", "zz")}
 
 
@@ -152,35 +157,39 @@ class _Mesh:
     cz: np.ndarray
     ax: np.ndarray         # aperture (fluid length) of the face between (j, i) and (j, i+1), (nz, nx-1)
     az: np.ndarray         # aperture of the face between (j, i) and (j+1, i), (nz-1, nx)
+    axisym: bool = False   # 3D: x is the horizontal distance R >= 0, measures carry 2 pi R
 
 
-def _mesh(contact, separation, h) -> _Mesh:
+def _mesh(contact, separation, h, axisym=False) -> _Mesh:
     """Cells of side ``h`` centred at ``x = (i + 1/2) h`` and ``z = j h``.
 
     The z = 0 row is a row of centres (a pair side by side stays on it when ``B^zz = 0``)
-    and ``x = contact`` is a face when ``contact / h`` is an integer.
+    and ``x = contact`` is a face when ``contact / h`` is an integer. ``axisym``: 3D
+    separations reduced to ``(R, Z)``, ``R = sqrt(X^2 + Y^2) >= 0``; cell measures are
+    volumes ``int 2 pi R dR dZ`` and face measures areas (``2 pi R`` times the length).
     """
     c, s = contact, separation
     nx = int(math.ceil(s / h - 1e-9))
-    x = (np.arange(-nx, nx) + 0.5) * h
+    x = (np.arange(0 if axisym else -nx, nx) + 0.5) * h
     nzh = int(math.ceil(s / h - 0.5 - 1e-9))
     z = np.arange(-nzh, nzh + 1) * h
     Xc, Zc = np.meshgrid(x, z)
     inside = Xc**2 + Zc**2 < s * s
     # cells touched by the core: subsample area, centroid and apertures
     near = (np.abs(np.hypot(Xc, Zc) - c) < h)
-    area = np.where(Xc**2 + Zc**2 >= c * c, h * h, 0.0)
+    ring = 2 * np.pi * Xc if axisym else 1.0
+    area = np.where(Xc**2 + Zc**2 >= c * c, h * h * ring, 0.0)
     cx, cz = Xc.copy(), Zc.copy()
     u = (np.arange(_SUB) + 0.5) / _SUB - 0.5
     for j, i in zip(*np.nonzero(near)):
         px = x[i] + u[None, :] * h
         pz = z[j] + u[:, None] * h
         fluid = (px**2 + pz**2) >= c * c
-        frac = fluid.mean()
-        area[j, i] = frac * h * h
-        if frac > 0:
-            cx[j, i] = (px * fluid).sum() / fluid.sum()
-            cz[j, i] = (pz * fluid + 0 * px).sum() / fluid.sum()
+        wgt = fluid * (2 * np.pi * px if axisym else 1.0)
+        area[j, i] = wgt.mean() * h * h
+        if wgt.sum() > 0:
+            cx[j, i] = (px * wgt).sum() / wgt.sum()
+            cz[j, i] = (pz * wgt).sum() / wgt.sum()
     active = inside & (area > 0)
     area = np.where(active, area, 0.0)
     # apertures: fluid fraction of each face segment (exact, a segment against a circle)
@@ -188,7 +197,20 @@ def _mesh(contact, separation, h) -> _Mesh:
     ax = h * _segment_outside(xf[None, :], z[:, None], h, c, vertical=True)
     zf = 0.5 * (z[:-1] + z[1:])
     az = h * _segment_outside(x[None, :], zf[:, None], h, c, vertical=False)
-    return _Mesh(h, x, z, active, area, cx, cz, ax, az)
+    if axisym:
+        ax = ax * 2 * np.pi * xf[None, :]
+        az = _ring_outside(x[None, :], zf[:, None], h, c)
+    return _Mesh(h, x, z, active, area, cx, cz, ax, az, axisym)
+
+
+def _ring_outside(xc, zf, h, c):
+    """Area of the annular face ``R in [xc - h/2, xc + h/2]`` at height ``zf`` with ``|r| >= c``."""
+    xc, zf = np.broadcast_arrays(xc, zf)
+    lo, hi = xc - h / 2, xc + h / 2
+    half = np.sqrt(np.maximum(c * c - zf**2, 0.0))
+    blo, bhi = np.maximum(lo, 0.0), np.minimum(hi, half)
+    blocked = np.where((half > 0) & (bhi > blo), np.pi * (bhi**2 - blo**2), 0.0)
+    return np.pi * (hi**2 - lo**2) - blocked
 
 
 def _segment_outside(xf, zf, h, c, vertical):
@@ -233,11 +255,14 @@ def _generator(mesh: _Mesh, B: dict, separation: float, absorbing: bool = True):
         if di:
             fi = np.minimum(I, i2)
             ok = (i2 >= 0) & (i2 < nx)
-            ap = np.where(ok, mesh.ax[J, np.clip(fi, 0, nx - 2)], h)
+            full = (2 * np.pi * np.maximum(mesh.x[I] + di * h / 2, 0.0) * h if mesh.axisym
+                    else np.full(I.shape, h))
+            ap = np.where(ok, mesh.ax[J, np.clip(fi, 0, nx - 2)], full)
         else:
             fj = np.minimum(J, j2)
             ok = (j2 >= 0) & (j2 < nz)
-            ap = np.where(ok, mesh.az[np.clip(fj, 0, nz - 2), I], h)
+            full = 2 * np.pi * mesh.x[I] * h if mesh.axisym else np.full(I.shape, h)
+            ap = np.where(ok, mesh.az[np.clip(fj, 0, nz - 2), I], full)
         j2c, i2c = np.clip(j2, 0, nz - 1), np.clip(i2, 0, nx - 1)
         tgt = np.where(ok, index[j2c, i2c], -1)
         rate_in = cf * ap / (h * area[J, I])
@@ -257,7 +282,7 @@ def _generator(mesh: _Mesh, B: dict, separation: float, absorbing: bool = True):
             root = np.sqrt(np.maximum(s * s - perp**2, 0.0))
             dist = np.where(sign > 0, root - along, along + root)
             dist = np.clip(dist, 1e-3 * h, h)
-            np.add.at(kill, src[beyond], (cf * h / (dist * area[J, I]))[beyond])
+            np.add.at(kill, src[beyond], (cf * full / (dist * area[J, I]))[beyond])
     # diagonal moves for B^xz -----------------------------------------------------------
     if np.any(mixed[act] > 0):
         for dj, di in ((1, 1), (-1, -1), (1, -1), (-1, 1)):
@@ -312,7 +337,7 @@ def _start_weights(mesh: _Mesh, index, start):
 
 
 def solve(tensor, contact=1.0, separation=2.0, start=None, *, spacing=None, frames=8,
-          fall_end=None, steps_per_mean=200, absorbed=0.99):
+          fall_end=None, steps_per_mean=200, absorbed=0.99, axisym=False):
     """Solve the relative Fokker-Planck equation for a given tensor field.
 
     Args:
@@ -324,6 +349,9 @@ def solve(tensor, contact=1.0, separation=2.0, start=None, *, spacing=None, fram
         fall_end: last fall in d (default: when ``absorbed`` of the probability is gone).
         steps_per_mean: backward Euler steps per mean fall.
         absorbed: stop when ``survival <= 1 - absorbed`` (if ``fall_end`` is None).
+        axisym: 3D separations with a tensor that is isotropic horizontally and has no
+            ``B^xz``: ``X`` is the horizontal distance ``R >= 0`` (cylindrical
+            finite volumes; docs/pair.md).
 
     Returns:
         dict with ``fall``, ``survival``, ``msd``, ``mean_fall``, ``median_fall``,
@@ -333,11 +361,13 @@ def solve(tensor, contact=1.0, separation=2.0, start=None, *, spacing=None, fram
     c, s = float(contact), float(separation)
     start = (c, 0.0) if start is None else (float(start[0]), float(start[1]))
     h = float(spacing) if spacing is not None else c / 16
-    mesh = _mesh(c, s, h)
+    mesh = _mesh(c, s, h, axisym=axisym)
     act = mesh.active
     B = tensor(np.where(act, mesh.cx, 0.0), np.where(act, mesh.cz, 0.0))
     B = {k: np.broadcast_to(np.asarray(B[k], float), act.shape) for k in ("xx", "xz", "zz")}
     clipped = float(np.mean((np.abs(B["xz"]) > np.minimum(B["xx"], B["zz"]) + 1e-300)[act]))
+    if axisym and np.any(B["xz"][act] != 0):
+        raise ValueError("axisym needs B^xz = 0 (a horizontally isotropic, diagonal tensor)")
     Q, kill, index = _generator(mesh, B, s)
     n = Q.shape[0]
     p0 = _start_weights(mesh, index, start)
@@ -448,13 +478,20 @@ def cage_breaking(kernel, b, rule=0.5, b_par=0.0, diffusivity="passage", contact
         attributes ``mean_fall``, ``median_fall`` (d) and every input.
     """
     _check_args(b, b_par, rule, diffusivity, contact, separation, start)
-    _check_kernel_2d(kernel)
+    _check_kernel_2d(kernel, allow_3d=True)
+    axisym = kernel.dims == 3
+    if axisym and diffusivity != "mean-field":
+        raise ValueError('diffusivity must be "mean-field" for a 3D kernel (the passage '
+                         "tensor is 2D only), got " + repr(diffusivity))
+    if axisym and start is not None and start[0] < 0:
+        raise ValueError("start[0] is the horizontal distance in 3D and must be >= 0, "
+                         f"got {start[0]}")
 
     def tensor(X, Z):
         return relative_tensor(kernel, b, rule, b_par, diffusivity, X, Z, b_p=b_p)
 
     res = solve(tensor, contact, separation, start, spacing=spacing, frames=frames,
-                fall_end=fall_end, steps_per_mean=steps_per_mean)
+                fall_end=fall_end, steps_per_mean=steps_per_mean, axisym=axisym)
     Xg, Zg = np.meshgrid(res["x"], res["z"])
     Bg = tensor(Xg, Zg)
     outside = (Xg**2 + Zg**2 < contact**2) | (Xg**2 + Zg**2 >= separation**2)
@@ -465,14 +502,14 @@ def cage_breaking(kernel, b, rule=0.5, b_par=0.0, diffusivity="passage", contact
         "b": float(b), "b_par": float(b_par), "rule": float(rule),
         "diffusivity": diffusivity, "kernel": repr(kernel), "spacing": res["spacing"],
         "mass_error": res["mass_error"], "min_P": res["min_P"],
-        "mixed_clipped_fraction": res["mixed_clipped"],
+        "mixed_clipped_fraction": res["mixed_clipped"], "dims": int(kernel.dims),
         "equation": "dP/dzeta = d_a d_b (B^ab P) (Ito); zero Ito flux at contact, "
                     "absorbing at separation",
     }
-    return _dataset(res, Bg, outside, attrs)
+    return _dataset(res, Bg, outside, attrs, dims=int(kernel.dims))
 
 
-def _dataset(res, Bg, outside, attrs, prefix=""):
+def _dataset(res, Bg, outside, attrs, prefix="", dims=2):
     import xarray as xr
 
     L = "1"  # lengths are numbers of particle diameters (no UDUNITS 'd', a day)
@@ -481,7 +518,8 @@ def _dataset(res, Bg, outside, attrs, prefix=""):
     coords = {
         fall: (fall, res["fall"], {"units": L, "long_name": "fall distance of the pair (in d)"}),
         frame: (frame, res["frames_fall"], {"units": L, "long_name": "fall distance of the P frames (in d)"}),
-        X: (X, res["x"], {"units": L, "long_name": "horizontal separation X (in d)"}),
+        X: (X, res["x"], {"units": L, "long_name": "horizontal separation X (in d)" if dims == 2
+                          else "horizontal distance sqrt(X^2 + Y^2) of the pair (in d)"}),
         Z: (Z, res["z"], {"units": L, "long_name": "vertical separation Z (in d)"}),
     }
     data = {
@@ -490,7 +528,8 @@ def _dataset(res, Bg, outside, attrs, prefix=""):
         f"{p}msd": ((fall,), res["msd"],
                     {"units": "1", "long_name": "mean squared separation of caged pairs (in d^2)"}),
         f"{p}P": ((frame, Z, X), res["P"],
-                  {"units": "1", "long_name": "density of the separation (per d^2); NaN outside the annulus"}),
+                  {"units": "1", "long_name": f"density of the separation (per d^{dims}); "
+                                              "NaN outside the annulus"}),
     }
     for k in ("xx", "xz", "zz"):
         data[f"{p}B_{k}"] = ((Z, X), np.where(outside, np.nan, Bg[k]),

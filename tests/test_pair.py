@@ -69,6 +69,31 @@ def test_2d_isotropic_constant_B_closed_form():
     assert ds.attrs["mean_fall"] == pytest.approx(exact, rel=2e-3)
 
 
+def test_3d_isotropic_constant_B_closed_form():
+    # spherical shell a < |r| < 2a, start at a: B (T'' + 2 T'/r) = -1, T'(a) = 0,
+    # T(2a) = 0 gives T(a) = a^2 / 3B. Axisymmetric (R, Z) finite volumes.
+    point3 = Gaussian(sigma=0.01, volume=0.05, dims=3)
+    ds = pair.cage_breaking(point3, 1.0, b_par=1.0, diffusivity="mean-field")
+    B = 2 * _bp(point3, 1.0)
+    assert ds.attrs["mean_fall"] == pytest.approx(1 / (3 * B), rel=2e-3)
+    assert ds.attrs["mass_error"] < 1e-10 and ds.attrs["min_P"] >= 0
+
+
+def test_3d_sphere_horizontal_pair_closed_form():
+    # b_par = 0: the pair moves in its horizontal plane, a 2D radial problem in R:
+    # beta (T'' + T'/R) = -1, so T(c) = int_c^s (1/R) int_c^R rho / beta(rho) drho dR
+    from scipy import integrate
+
+    k = Uniform(radius=2.5, height=0.0024, dims=3)
+    beta = lambda r: 2 * _bp(k, 1.3) * (1 - k.correlation(r))  # noqa: E731
+    exact = integrate.quad(lambda R: integrate.quad(lambda r: r / beta(r), 1, R)[0] / R,
+                           1, 2)[0]
+    ds = pair.cage_breaking(k, 1.3, diffusivity="mean-field")
+    assert ds.attrs["mean_fall"] == pytest.approx(exact, rel=3e-3)
+    with pytest.raises(ValueError, match="diffusivity"):
+        pair.cage_breaking(k, 1.3, diffusivity="passage")
+
+
 def test_2d_convergence_second_order():
     B = 2 * _bp(POINT, 1.0)
     exact = (0.75 - math.log(2) / 2) / B
