@@ -430,8 +430,8 @@ def _check_args(b, b_par, rule, diffusivity, contact, separation, start):
         if not isinstance(v, (int, float, np.floating, np.integer)) or isinstance(v, bool) \
                 or not math.isfinite(float(v)):
             raise TypeError(f"{name} must be a finite number, got {v!r}")
-    if b < 0:
-        raise ValueError(f"b must be >= 0, got {b}")
+    if not b > 0:
+        raise ValueError(f"b must be > 0 (without spot diffusion no cage breaks), got {b}")
     if b_par < 0:
         raise ValueError(f"b_par must be >= 0, got {b_par}")
     if not 0.0 <= float(rule) <= 1.0:
@@ -463,7 +463,7 @@ def cage_breaking(kernel, b, rule=0.5, b_par=0.0, diffusivity="passage", contact
 
     Args:
         kernel: 2D kernel (``spotpde.kernels``).
-        b, b_par: spot diffusion lengths in d (horizontal, vertical), ``>= 0``.
+        b, b_par: spot diffusion lengths in d (horizontal ``> 0``, vertical ``>= 0``).
         rule: lam, in [0, 1] (used by ``"passage"``; mean field does not depend on it).
         diffusivity: ``"passage"`` (the discrete model's pair diffusivity) or ``"mean-field"``.
         contact: hard-core diameter in d (reflecting, zero Ito flux).
