@@ -347,7 +347,9 @@ def solve(tensor, contact=1.0, separation=2.0, start=None, *, spacing=None, fram
     Args:
         tensor: callable ``tensor(X, Z) -> {"xx", "xz", "zz"}`` (arrays in d).
         contact, separation: radii of the reflecting core and the absorbing cage, in d.
-        start: initial separation ``(X0, Z0)`` in d (default ``(contact, 0)``).
+        start: initial separation ``(X0, Z0)`` in d (default ``(contact, 0)``), or
+            ``"contact"``: uniform over the directions of the contact circle (3D: sphere),
+            the neighbours of a grain in an isotropic packing.
         spacing: grid spacing in d (default ``contact / 16``).
         frames: number of stored frames of ``P``.
         fall_end: last fall in d (default: when ``absorbed`` of the probability is gone).
@@ -363,7 +365,8 @@ def solve(tensor, contact=1.0, separation=2.0, start=None, *, spacing=None, fram
         ``mass_error`` (max |survival + absorbed - 1|), ``min_P``, ``spacing``, ``mixed_clipped``.
     """
     c, s = float(contact), float(separation)
-    start = (c, 0.0) if start is None else (float(start[0]), float(start[1]))
+    ring = isinstance(start, str)
+    start = ((c, 0.0) if start is None or ring else (float(start[0]), float(start[1])))
     h = float(spacing) if spacing is not None else c / 16
     mesh = _mesh(c, s, h, axisym=axisym)
     act = mesh.active
@@ -374,7 +377,15 @@ def solve(tensor, contact=1.0, separation=2.0, start=None, *, spacing=None, fram
         raise ValueError("axisym needs B^xz = 0 (a horizontally isotropic, diagonal tensor)")
     Q, kill, index = _generator(mesh, B, s)
     n = Q.shape[0]
-    p0 = _start_weights(mesh, index, start)
+    if ring:
+        # directions uniform on the circle (3D: on the sphere, weight R = c cos(angle))
+        ang = (np.arange(256) + 0.5) / 256 * (np.pi if axisym else 2 * np.pi) - (np.pi / 2 if axisym else 0)
+        wts = np.cos(ang) if axisym else np.ones_like(ang)
+        r0 = c * (1 + 1e-9)
+        p0 = sum(w * _start_weights(mesh, index, (r0 * np.cos(a), r0 * np.sin(a)))
+                 for a, w in zip(ang, wts)) / wts.sum()
+    else:
+        p0 = _start_weights(mesh, index, start)
     # mean fall: -Q T = 1 (backward equation), one sparse solve
     lu_T = spla.splu((-Q).tocsc())
     T = lu_T.solve(np.ones(n))
@@ -388,6 +399,7 @@ def solve(tensor, contact=1.0, separation=2.0, start=None, *, spacing=None, fram
     r2 = (mesh.cx**2 + mesh.cz**2)[act]
     m = p0.copy()
     surv, msd, absorbed_mass, falls = [1.0], [float(p0 @ r2)], [0.0], [0.0]
+    rate = [float(kill @ p0)]
     max_steps = (int(math.ceil(fall_end / dt)) if fall_end is not None
                  else 200 * steps_per_mean)
     snaps = [m.copy()]
@@ -395,7 +407,8 @@ def solve(tensor, contact=1.0, separation=2.0, start=None, *, spacing=None, fram
     min_m = float(m.min())
     while step < max_steps:
         m_new = lu.solve(m)
-        absorbed_mass.append(absorbed_mass[-1] + dt * float(kill @ m_new))
+        rate.append(float(kill @ m_new))
+        absorbed_mass.append(absorbed_mass[-1] + dt * rate[-1])
         m = m_new
         step += 1
         S = float(m.sum())
@@ -418,6 +431,7 @@ def solve(tensor, contact=1.0, separation=2.0, start=None, *, spacing=None, fram
         P[f][act] = snaps[k] / mesh.area[act]
     mass_error = float(np.max(np.abs(surv + np.array(absorbed_mass) - 1.0)))
     return {"fall": falls, "survival": surv, "msd": msd, "mean_fall": mean,
+            "breaking": np.array(rate),
             "median_fall": median, "frames_fall": snap_falls[pick], "P": P,
             "x": mesh.x, "z": mesh.z, "mass_error": mass_error, "min_P": min_m,
             "spacing": h, "mixed_clipped": clipped, "start": start,
@@ -443,6 +457,10 @@ def _check_args(b, b_par, rule, diffusivity, contact, separation, start):
     if not separation > contact:
         raise ValueError(f"separation must be > contact, got separation={separation}, contact={contact}")
     if start is not None:
+        if isinstance(start, str):
+            if start != "contact":
+                raise ValueError(f'start must be (X, Z) or "contact", got {start!r}')
+            return
         if len(start) != 2:
             raise ValueError(f"start must be a separation (X, Z) in d, got {start!r}")
         r = math.hypot(float(start[0]), float(start[1]))
@@ -468,7 +486,9 @@ def cage_breaking(kernel, b, rule=0.5, b_par=0.0, diffusivity="passage", contact
         diffusivity: ``"passage"`` (the discrete model's pair diffusivity) or ``"mean-field"``.
         contact: hard-core diameter in d (reflecting, zero Ito flux).
         separation: separation at which the cage counts as broken, in d (absorbing).
-        start: initial separation ``(X0, Z0)`` in d, ``contact <= |start| < separation``.
+        start: initial separation ``(X0, Z0)`` in d, ``contact <= |start| < separation``
+            (3D: ``X0`` the horizontal distance), or ``"contact"``: uniform over the
+            directions at contact (the average over a grain's neighbours).
         spacing: grid spacing in d (default ``contact/16``).
         frames: number of ``P`` frames stored.
         fall_end: last fall in d (default: until 99 % of the pairs have separated).
@@ -477,7 +497,8 @@ def cage_breaking(kernel, b, rule=0.5, b_par=0.0, diffusivity="passage", contact
             ``D_p/|u_z|`` at a point) replacing the uniform-flow ``diag(b, b_par) V2/V1``.
 
     Returns:
-        ``xarray.Dataset``: ``survival(fall)``, ``msd(fall)`` (mean squared separation of
+        ``xarray.Dataset``: ``survival(fall)``, ``breaking(fall)`` (density of the
+        cage-breaking fall, ``-dS/dfall``), ``msd(fall)`` (mean squared separation of
         the pairs still caged), ``P(frame, Z, X)``, ``B_xx``, ``B_xz``, ``B_zz`` (Z, X);
         attributes ``mean_fall``, ``median_fall`` (d) and every input.
     """
@@ -487,7 +508,7 @@ def cage_breaking(kernel, b, rule=0.5, b_par=0.0, diffusivity="passage", contact
     if axisym and diffusivity != "mean-field":
         raise ValueError('diffusivity must be "mean-field" for a 3D kernel (the passage '
                          "tensor is 2D only), got " + repr(diffusivity))
-    if axisym and start is not None and start[0] < 0:
+    if axisym and start is not None and not isinstance(start, str) and start[0] < 0:
         raise ValueError("start[0] is the horizontal distance in 3D and must be >= 0, "
                          f"got {start[0]}")
 
@@ -503,6 +524,7 @@ def cage_breaking(kernel, b, rule=0.5, b_par=0.0, diffusivity="passage", contact
         "mean_fall": res["mean_fall"], "median_fall": res["median_fall"],
         "contact": float(contact), "separation": float(separation),
         "start_x": res["start"][0], "start_z": res["start"][1],
+        "start": start if isinstance(start, str) else "point",
         "b": float(b), "b_par": float(b_par), "rule": float(rule),
         "diffusivity": diffusivity, "kernel": repr(kernel), "spacing": res["spacing"],
         "mass_error": res["mass_error"], "min_P": res["min_P"],
@@ -529,6 +551,9 @@ def _dataset(res, Bg, outside, attrs, prefix="", dims=2):
     data = {
         f"{p}survival": ((fall,), res["survival"],
                          {"units": "1", "long_name": "probability the pair is still caged (|r| < separation)"}),
+        f"{p}breaking": ((fall,), res["breaking"],
+                         {"units": "1", "long_name": "probability density of the cage-breaking "
+                                                     "fall, -dS/dfall (per d)"}),
         f"{p}msd": ((fall,), res["msd"],
                     {"units": "1", "long_name": "mean squared separation of caged pairs (in d^2)"}),
         f"{p}P": ((frame, Z, X), res["P"],

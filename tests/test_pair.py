@@ -122,6 +122,28 @@ def test_disk_ito_mean_fall_246_not_fickian():
     assert abs(ds.attrs["mean_fall"] - fick) > 40
 
 
+def test_start_averaged_over_contact_directions():
+    # isotropic constant B: every contact direction has the same mean fall, so the
+    # average over directions equals the closed forms (2D a^2 (3/4 - ln2/2)/B, 3D a^2/3B)
+    B = 2 * _bp(POINT, 1.0)
+    ds = pair.cage_breaking(POINT, 1.0, b_par=1.0, diffusivity="mean-field", start="contact")
+    assert ds.attrs["mean_fall"] == pytest.approx((0.75 - math.log(2) / 2) / B, rel=2e-3)
+    point3 = Gaussian(sigma=0.01, volume=0.05, dims=3)
+    B3 = 2 * _bp(point3, 1.0)
+    ds3 = pair.cage_breaking(point3, 1.0, b_par=1.0, diffusivity="mean-field",
+                             start="contact")
+    assert ds3.attrs["mean_fall"] == pytest.approx(1 / (3 * B3), rel=2e-3)
+    # the paper's disk with b_par = 0: vertical neighbours stay together longer
+    disk = pair.cage_breaking(DISK, 1.3, diffusivity="mean-field", start="contact",
+                              spacing=1 / 8)
+    side = pair.cage_breaking(DISK, 1.3, diffusivity="mean-field", spacing=1 / 8)
+    assert disk.attrs["mean_fall"] > 1.3 * side.attrs["mean_fall"]
+    # the cage-breaking density integrates to the absorbed probability
+    dz = np.diff(disk["fall"].values)[0]
+    absorbed = dz * disk["breaking"].values[1:].sum()
+    assert absorbed == pytest.approx(1 - disk["survival"].values[-1], abs=1e-10)
+
+
 def test_anisotropic_kernel_enters_by_scaled_separation():
     k = Exponential(length=1.0, volume=0.05, aspect=2.0)
     b = 1.3
