@@ -57,7 +57,9 @@ def add_to_result(case, ds):
     b = at_point(case.spots.b)
     b_par = at_point(case.spots.b_par)
     diffusivity = case.data["kernel"].get("diffusivity", "mean-field")
-    start = None if p.get("start") is None else (p["start"]["x"], p["start"]["z"])
+    start = p.get("start")
+    if isinstance(start, dict):
+        start = (start["x"], start["z"])
     from .pair import cage_breaking
 
     res = cage_breaking(kernel, b, rule=case.rule, b_par=b_par, diffusivity=diffusivity,

@@ -619,7 +619,9 @@ class _Validator:
         if c is not None and s is not None and not s > c:
             self.bad("pair.separation", f"must be > pair.contact = {_show(c)}", s)
             c = s = None
-        if t["start"] is not None:
+        if t["start"] == "contact":
+            out["start"] = "contact"      # uniform over the contact directions
+        elif t["start"] is not None:
             st = self.table("pair.start", t["start"], PAIR_START_KEYS)
             if st is not None:
                 sx = self.number("pair.start.x", 0.0 if st["x"] is None else st["x"])

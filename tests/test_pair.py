@@ -308,6 +308,17 @@ def test_case_bad_pair_table_names_the_key(table, key):
     assert any(key in line for line in err.value.problems), err.value.problems
 
 
+def test_case_pair_start_contact_is_accepted():
+    import spotpde
+
+    raw = {k: dict(v) for k, v in UNIFORM_CASE.items()}
+    raw["pair"]["start"] = "contact"
+    assert spotpde.load_case(raw).data["pair"]["start"] == "contact"
+    raw["pair"]["start"] = "contacts"
+    with pytest.raises(spotpde.CaseError, match="pair.start"):
+        spotpde.load_case(raw)
+
+
 def test_cli_bad_pair_exits_2_without_output(tmp_path):
     import subprocess
     import sys
