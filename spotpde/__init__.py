@@ -22,7 +22,7 @@ _SUBMODULES = (
     "grid", "parameters", "kernels", "convolution", "orifice", "spot_density",
     "kinematic", "coefficients", "comparison", "tracer", "void", "layers", "cases", "io",
     "pipeline",
-    "plotting", "montecarlo", "sweep", "cli",
+    "plotting", "montecarlo", "sweep", "cli", "pair",
     "traffic", "noise",          # interacting spots (spots.rho_max), random orifice rate
 )
 _FUNCTIONS = {

@@ -49,6 +49,9 @@ DEFAULTS: dict[str, dict[str, Any]] = {
     "tracer": {"model": "spot", "start": None, "layers": None, "t_end": 100.0, "frames": 20,
                "limiter": "weno5", "cfl": 0.9, "diffusion": "auto", "snapshots": "auto"},
     "output": {"path": "out.nc"},
+    # optional: cage breaking of a pair at a point of the flow (spotpde.pair, docs/pair.md)
+    "pair": {"x": None, "z": None, "contact": 1.0, "separation": 2.0, "start": None,
+             "spacing": None, "frames": 8},
 }
 RATE_TABLE_KEYS = {"times": None, "values": None}
 PROFILE_KEYS = {"x": None, "z": None, "values": None}
@@ -59,6 +62,7 @@ FLUX_SHAPES = ("greenshields", "triangular")
 DIFFUSION_SCALINGS = ("fixed", "speed")
 START_KEYS = {"x": None, "y": None, "z": None, "width": 1.0}
 LAYERS_KEYS = {"spacing": 10.0}
+PAIR_START_KEYS = {"x": None, "z": None}
 
 #: Upper bounds that keep every derived number finite and every index an int.
 MAX_LENGTH = 1.0e6
@@ -451,7 +455,7 @@ class _Validator:
         self.given = {name: set(t) for name, t in raw.items() if isinstance(t, Mapping)}
         data: dict[str, Any] = {}
         for name, defaults in DEFAULTS.items():
-            if name == "tracer" and name not in raw:
+            if name in ("tracer", "pair") and name not in raw:
                 continue
             t = self.table(name, raw.get(name, {}), defaults)
             if t is None:
@@ -648,6 +652,45 @@ class _Validator:
                                                         gt=0)}
         return out
 
+    def _pair(self, t):
+        out = {}
+        for key in ("x", "z"):
+            if t[key] is None:
+                self.problems.append(f"pair.{key}: required (a number, in d): the point of "
+                                     "the flow where the pair falls")
+            else:
+                out[key] = self.number(f"pair.{key}", t[key])
+        out["contact"] = self.number("pair.contact", t["contact"], gt=0)
+        out["separation"] = self.number("pair.separation", t["separation"], gt=0)
+        if t["spacing"] is not None:
+            out["spacing"] = self.number("pair.spacing", t["spacing"], gt=0)
+        out["frames"] = self.number("pair.frames", t["frames"], integer=True, ge=1,
+                                    le=MAX_FRAMES)
+        c, s = out["contact"], out["separation"]
+        if c is not None and s is not None and not s > c:
+            self.bad("pair.separation", f"must be > pair.contact = {_show(c)}", s)
+            c = s = None
+        if t["start"] == "contact":
+            out["start"] = "contact"      # uniform over the contact directions
+        elif t["start"] is not None:
+            st = self.table("pair.start", t["start"], PAIR_START_KEYS)
+            if st is not None:
+                sx = self.number("pair.start.x", 0.0 if st["x"] is None else st["x"])
+                sz = self.number("pair.start.z", 0.0 if st["z"] is None else st["z"])
+                out["start"] = {"x": sx, "z": sz}
+                if None not in (sx, sz, c, s):
+                    r = math.hypot(sx, sz)
+                    if r < c:
+                        self.problems.append(f"pair.start: is inside the core: |start| = "
+                                             f"{r:.6g} < pair.contact = {_show(c)}")
+                    elif r >= s:
+                        self.problems.append(f"pair.start: is outside the cage: |start| = "
+                                             f"{r:.6g} >= pair.separation = {_show(s)}")
+        if out.get("spacing") is not None and c is not None and out["spacing"] > c / 2:
+            self.bad("pair.spacing", f"must be at most pair.contact / 2 = {_show(c / 2)}",
+                     out["spacing"])
+        return out
+
     def _output(self, t):
         path = t["path"]
         if not isinstance(path, str) or not path.strip() or "\x00" in path:
@@ -752,6 +795,17 @@ class _Validator:
             elif sp >= 2 * (z1 - z0):
                 self.bad("tracer.layers.spacing", f"must be < 2 * the domain height "
                          f"{_show(z1 - z0)} to leave a band and a gap in the silo", sp)
+
+        p = data.get("pair")
+        if p is not None:
+            if dims != 2:
+                self.bad("pair", "needs domain.dims = 2 (the pair solver is 2D)", dims)
+            if p.get("x") is not None and not x0 <= p["x"] <= x1:
+                self.bad("pair.x", f"must lie in domain.x = [{_show(x0)}, {_show(x1)}]",
+                         p["x"])
+            if p.get("z") is not None and not z0 < p["z"] < z1:
+                self.bad("pair.z", f"must lie inside domain.z = ({_show(z0)}, {_show(z1)})",
+                         p["z"])
 
     def memory(self, data, frames_in_memory=True):
         need = estimate_bytes(data, frames_in_memory) + BASELINE_BYTES

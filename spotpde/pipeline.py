@@ -162,6 +162,8 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
     ds = make_dataset(grid, out, times=times, attrs=attrs)
     if interacting is not None:
         ds = importlib.import_module("spotpde.traffic").add_outputs(ds, case, interacting)
+    if case.data.get("pair") is not None:     # cage breaking at a point (spotpde.pair)
+        ds = importlib.import_module("spotpde.pair").add_to_result(case, ds)
     return ds
 
 

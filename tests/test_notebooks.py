@@ -28,7 +28,8 @@ def _ids(paths):
 def test_notebooks_exist():
     names = {p.name for p in NOTEBOOKS}
     for expected in ("paper_estimates.ipynb", "velocity_correlations.ipynb",
-                     "layered_silo.ipynb", "kinematic_rule.ipynb", "density_waves.ipynb"):
+                     "layered_silo.ipynb", "kinematic_rule.ipynb", "density_waves.ipynb",
+                     "cage_breaking.ipynb"):
         assert expected in names, f"notebooks/{expected} is missing"
 
 
