@@ -45,7 +45,8 @@ import scipy.signal
 from .grid import Grid
 
 __all__ = ["WALL_TREATMENTS", "check_walls", "renormalises", "coverage", "coverage_1d",
-           "marginal", "renormalised_fields"]
+           "face_value", "marginal", "renormalised_fields", "cutoff_marginal",
+           "coverage_table"]
 
 #: ``"renormalise"`` (default): a spot's influence is divided by the fraction ``phi`` of its
 #: kernel inside the material, so every step displaces ``V1 dR``; ``"truncate"``: the part
@@ -126,6 +127,22 @@ def coverage(grid: Grid, kernel, mask: np.ndarray | None = None) -> np.ndarray:
     return np.clip(phi, 1e-300, 1.0)
 
 
+def face_value(phi: np.ndarray, axis: int, side: int) -> np.ndarray:
+    """``phi`` on a boundary face from the four nearest cell centres (cubic, error O(h^4)).
+
+    ``(35 f0 - 35 f1 + 21 f2 - 5 f3) / 16`` (Lagrange extrapolation to ``-h/2``); ``phi``
+    is smooth at a wall (its first kink lies a kernel radius inside), so this is ~10x
+    more accurate than the third-order formula at ``h = R/10`` (the wall layer's
+    ``1/phi`` at the face then errs by 1e-4 instead of 4e-3 for a Gaussian, h = 0.25).
+    """
+    n = phi.shape[axis]
+    if n < 4:
+        return np.take(phi, 0 if side < 0 else n - 1, axis=axis)
+    idx = (0, 1, 2, 3) if side < 0 else (-1, -2, -3, -4)
+    f0, f1, f2, f3 = (np.take(phi, i, axis=axis) for i in idx)
+    return np.clip((35.0 * f0 - 35.0 * f1 + 21.0 * f2 - 5.0 * f3) / 16.0, 1e-300, 1.0)
+
+
 def marginal(kernel, u) -> np.ndarray:
     """``m(u) = integral w(u, [y,] z) d[y]dz``: the kernel integrated over all but ``x``.
 
@@ -171,19 +188,20 @@ def renormalised_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: f
     ``D_p = w^2 * (rho_s D_s / phi^2)``; ``div`` by second-order grid differences of the
     un-renormalised ``D_s rho_s`` (as in the truncated fields). ``conv`` is the
     ``coefficients._Convolutions`` collector (one transform per source and stencil).
-    Also returns ``"_G"``: ``rho_s D_s^ab / phi`` (for the wall layer's face values).
+    Also returns ``"_G"``: ``rho_s D_s^ab`` and ``"_phi"``: ``phi`` (the wall layer takes
+    the face values of both, each extrapolated to third order: ``phi`` is smooth at a
+    wall, ``1/phi`` much less so).
     """
     from .coefficients import _COMPONENTS, _is_zero, divergence
 
     comps = _COMPONENTS[grid.dims]
     inv = 1.0 / phi
-    G, G_phi, D_terms = {}, {}, {}
+    G, D_terms = {}, {}
     for key, d in D_s.items():
         if _is_zero(d):
-            G[key] = G_phi[key] = None
+            G[key] = None
             continue
         G[key] = rho_s * d
-        G_phi[key] = G[key] * inv
         if np.ndim(d) == 0:
             D_terms[key] = (float(d), conv.request("rho_phi2", rho_s * inv * inv, 2))
         else:
@@ -211,7 +229,8 @@ def renormalised_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: f
             fields[key] = factor * res[rkey]
         else:
             fields[key] = np.zeros(grid.shape)
-    fields["_G"] = G_phi
+    fields["_G"] = G
+    fields["_phi"] = phi
     return fields
 
 

@@ -512,12 +512,13 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
     v_s = spots.drift
 
     conv = _Convolutions(grid, kernel)
+    phi = None
     constant = np.ndim(v_s) == 0 and all(np.ndim(d) == 0 for d in D_s.values())
     if _walls.renormalises(grid, walls):
         # free-volume-conserving walls: sources divided by phi (u_p) and phi^2 (D_p)
         fields = _walls.renormalised_fields(grid, rho_s, v_s, D_s, lam, conv,
                                             _walls.coverage(grid, kernel, mask))
-        G = fields.pop("_G")
+        G, phi = fields.pop("_G"), fields.pop("_phi")
     elif constant and min(grid.shape) >= 3:
         fields = _constant_fields(grid, rho_s, float(v_s), D_s, lam, conv)
         G = {key: None if _is_zero(d) else rho_s * d for key, d in D_s.items()}
@@ -536,6 +537,8 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
                 if g is None:
                     continue
                 faces = {-1: -_face_value(g, axis, -1), +1: _face_value(g, axis, +1)}
+                if phi is not None:  # renormalised: (D_s rho_s)·n / phi on the wall
+                    faces = {s: v / _walls.face_value(phi, axis, s) for s, v in faces.items()}
                 fields[f"u_{a}"] += (1.0 - 2.0 * lam) * _wall_layer(grid, kernel, n, faces)
     # D_p = w^2 * (rho_s D_s) has a non-negative diagonal; the FFT leaves round-off
     # negatives (~1e-17 of the peak) where it vanishes, which the tracer would reject

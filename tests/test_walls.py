@@ -272,3 +272,63 @@ def test_monte_carlo_wall_profile_matches_the_renormalised_continuum():
     z_cut = np.abs(mean - cont["truncate"])[near] / se[near]
     assert z_ren.max() < 4.0                  # 16 correlated cells: 4 SE
     assert z_cut.min() > 10.0                 # the truncated profile is rejected
+
+
+# -- 6. the lam-rule terms and the wall layer against the exact discrete-step average --------
+
+def _discrete_rule_drift(x_p, lam, W, phi, D, rho, L, eps=1e-3):
+    """Exact mean horizontal particle velocity near reflecting walls at +-L, renormalised.
+
+    Uniform spots of density rho in [-L, L] step by xi ~ N(0, 2 D dt) (reflected at the
+    walls); each moves the particle by ``-W(x_p - x_c) dX / phi(x_c)``, ``x_c = x_s +
+    lam dX``, with W the kernel integrated over z. Quadrature over x_s (Gauss-Legendre
+    panels, refined at the walls) and the step (uniform nodes: the reflection has a kink)
+    for 2 D dt = eps^2; the result's own error is O(eps) (5e-4 relative in
+    test_coefficients' version without phi).
+    """
+    from numpy.polynomial.legendre import leggauss
+
+    dt = eps**2 / (2 * D)
+    xi = np.linspace(-9.0, 9.0, 2001)
+    cq = np.exp(-xi**2 / 2)
+    cq[[0, -1]] *= 0.5
+    cq /= cq.sum()
+    xi = xi * eps
+
+    def reflect(y):
+        y = np.where(y > L, 2 * L - y, y)
+        return np.where(y < -L, -2 * L - y, y)
+
+    edges = np.unique(np.concatenate([
+        [-L], -L + eps * np.array([2, 5, 10, 20]), np.linspace(-L + 0.05, L - 0.05, 201),
+        L - eps * np.array([20, 10, 5, 2]), [L]]))
+    t, wt = leggauss(16)
+    total = 0.0
+    for a, c in zip(edges[:-1], edges[1:]):
+        xs = 0.5 * (a + c) + 0.5 * (c - a) * t
+        Xs, Q = np.meshgrid(xs, xi, indexing="ij")
+        dX = reflect(Xs + Q) - Xs
+        xc = Xs + lam * dX
+        total += 0.5 * (c - a) * np.dot(wt, (W(x_p - xc) / phi(xc) * dX) @ cq)
+    return -rho * total / dt
+
+
+@pytest.mark.parametrize("rule", [0.0, 0.5, 1.0])
+def test_renormalised_wall_layer_matches_the_discrete_rule(rule):
+    """Signs and sizes of the lam terms: 2 lam rho D grad(phi)/phi^2 and the wall layer / phi."""
+    sigma, b, rho0, L = 1.0, 1.3, 2.0, 6.0
+    kernel = kernels.Gaussian(sigma=sigma, volume=V1, dims=2)
+    grid = Grid(2, (-L, L), (0.0, 24.0), 0.25, walls="reflecting")
+    f = C.particle_fields(grid, np.full(grid.shape, rho0), Spots(drift=1.0, b=b), kernel,
+                          rule=rule)
+    k = grid.nz // 2
+    W = lambda x: V1 * stats.norm.pdf(x, scale=sigma)
+    phi = lambda s: stats.norm.cdf((L - s) / sigma) - stats.norm.cdf((-L - s) / sigma)
+    scale = b * rho0 * W(0.0)
+    for i in (grid.nx - 1, grid.nx - 4, 2):
+        exact = _discrete_rule_drift(grid.x[i], rule, W, phi, b, rho0, L)
+        # the truncated check's tolerance (2e-3 of scale) relative to the push, which is
+        # twice as large here; it includes the reference's own O(eps) error (8e-4 of scale)
+        assert abs(f["u_x"][k, i] - exact) < 4e-3 * scale, (i, f["u_x"][k, i], exact)
+    if rule == 1.0:   # twice the truncated push: phi = 1/2 at the wall
+        assert f["u_x"][k, -1] < -1.0 * scale and f["u_x"][k, 0] > 1.0 * scale
