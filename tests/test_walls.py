@@ -15,9 +15,12 @@ Closed forms used (derivations in docs/walls.md):
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from scipy import integrate, stats
+from scipy.special import ndtr
 
 import spotpde
 from spotpde import _walls, coefficients as C, kernels, spot_density
@@ -85,19 +88,24 @@ def test_particle_flux_is_V1_Q0_at_every_height_3d(width, kernel):
 SIG, V1, HALF, Q0, B = 1.0, 0.05, 3.0, 2.0, 1.3
 
 
+def _normal(u, var):
+    return math.exp(-u * u / (2.0 * var)) / math.sqrt(2.0 * math.pi * var)
+
+
 def _closed_form(x, lam):
     """u_z, u_x, D_xx of uniform flow between walls at -HALF, HALF (Gaussian, 2D)."""
-    m = lambda u: V1 * stats.norm.pdf(u, scale=SIG)
+    m = lambda u: V1 * _normal(u, SIG**2)
     # w^2 = V1^2 / (2 pi sigma^2)^2 exp(-r^2/sigma^2): marginal V2 N(0, sigma^2/2)
     V2 = V1**2 / (4.0 * np.pi * SIG**2)
-    m2 = lambda u: V2 * stats.norm.pdf(u, scale=SIG / np.sqrt(2.0))
-    phi = lambda s: stats.norm.cdf((HALF - s) / SIG) - stats.norm.cdf((-HALF - s) / SIG)
+    m2 = lambda u: V2 * _normal(u, SIG**2 / 2.0)
+    phi = lambda s: float(ndtr((HALF - s) / SIG) - ndtr((-HALF - s) / SIG))
     rho = Q0 / (2.0 * HALF)          # v_s = 1
     uz = np.array([-rho * integrate.quad(lambda s: m(xx - s) / phi(s), -HALF, HALF,
                                          epsabs=1e-14)[0] for xx in x])
     dxx = np.array([B * rho * integrate.quad(lambda s: m2(xx - s) / phi(s) ** 2, -HALF, HALF,
                                              epsabs=1e-14)[0] for xx in x])
-    ux = (1.0 - 2.0 * lam) * B * rho * (m(x - HALF) / phi(HALF) - m(x + HALF) / phi(-HALF))
+    ux = (1.0 - 2.0 * lam) * B * rho * np.array([m(xx - HALF) / phi(HALF) - m(xx + HALF) / phi(-HALF)
+                                                 for xx in x])
     return uz, ux, dxx
 
 
@@ -313,6 +321,7 @@ def _discrete_rule_drift(x_p, lam, W, phi, D, rho, L, eps=1e-3):
     return -rho * total / dt
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("rule", [0.0, 0.5, 1.0])
 def test_renormalised_wall_layer_matches_the_discrete_rule(rule):
     """Signs and sizes of the lam terms: 2 lam rho D grad(phi)/phi^2 and the wall layer / phi."""
@@ -332,3 +341,16 @@ def test_renormalised_wall_layer_matches_the_discrete_rule(rule):
         assert abs(f["u_x"][k, i] - exact) < 4e-3 * scale, (i, f["u_x"][k, i], exact)
     if rule == 1.0:   # twice the truncated push: phi = 1/2 at the wall
         assert f["u_x"][k, -1] < -1.0 * scale and f["u_x"][k, 0] > 1.0 * scale
+
+
+def test_kinematic_comparison_reports_the_flux_of_the_wall_treatment():
+    from spotpde import comparison
+
+    g = Grid(2, (-4.0, 4.0), (0.0, 24.0), 0.25)
+    parts = dict(grid=g, orifice=Orifice(x=0.0, width=2.0, rate=1.0), spots=Spots(b=1.3),
+                 kernel=kernels.Uniform(dims=2, **DISK))
+    deficit = {w: comparison.compare_with_kinematic(dict(parts, walls=w), n_streamlines=3)
+               .flux_deficit for w in ("renormalise", "truncate")}
+    high = slice(len(deficit["truncate"]) // 2, None)   # heights where J_z is nearly uniform
+    assert np.abs(deficit["renormalise"][high]).max() < 1e-3
+    assert deficit["truncate"][high].min() > 0.1        # 13 % lost in an 8 d silo
