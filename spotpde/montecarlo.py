@@ -261,6 +261,7 @@ class MCResult:
             ``rho_hist``: ``(n_batch, nz, nx)`` spot samples; ``batch_ticks``: ticks per batch.
         counters: injected spots, spot steps, particle updates, cell-list rebuilds.
         wall_time, cpu_time: wall-clock and CPU seconds spent in the numba loop.
+        walls: the wall treatment (``"renormalise"`` or ``"truncate"``).
     """
 
     grid: Grid
@@ -292,6 +293,7 @@ class MCResult:
     counters: dict = field(default_factory=dict)
     wall_time: float = 0.0
     cpu_time: float = 0.0
+    walls: str = "renormalise"
 
     @property
     def performance(self) -> dict:
@@ -527,7 +529,7 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
         counters={"spots_injected": int(cnt[K.C_INJECTED]), "spot_steps": int(cnt[K.C_STEPS]),
                   "particle_updates": int(cnt[K.C_UPDATES]),
                   "cell_rebuilds": int(cnt[K.C_REBUILDS]), "spots_removed": int(cnt[K.C_REMOVED])},
-        wall_time=wall, cpu_time=cpu,
+        wall_time=wall, cpu_time=cpu, walls=walls,
     )
 
 
@@ -719,6 +721,7 @@ def measure(result: MCResult, tracer: bool = True) -> xr.Dataset:
         "V1": kp.V1, "V2": kp.V2, "rule": result.rule, "gamma": result.gamma,
         "step": result.step, "t_end": result.t_end, "seed": result.seed,
         "steps": result.steps, "source": "montecarlo", "spotpde_version": __version__,
+        "kernel_walls": result.walls,
         **{k: v for k, v in result.counters.items()},
         **{k: v for k, v in result.performance.items()},
     })

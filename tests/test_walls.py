@@ -354,3 +354,15 @@ def test_kinematic_comparison_reports_the_flux_of_the_wall_treatment():
     high = slice(len(deficit["truncate"]) // 2, None)   # heights where J_z is nearly uniform
     assert np.abs(deficit["renormalise"][high]).max() < 1e-3
     assert deficit["truncate"][high].min() > 0.1        # 13 % lost in an 8 d silo
+
+
+def test_monte_carlo_records_and_validates_the_wall_treatment():
+    from spotpde import montecarlo as mc
+
+    g = Grid(2, (-3.0, 3.0), (0.0, 4.0), 0.5)
+    k = kernels.Uniform(dims=2, **DISK)
+    args = (g, Orifice(x=0.0, width=6.0, rate=2.0), Spots(b=1.3), k)
+    with pytest.raises(spotpde.CaseError, match="kernel.walls"):
+        mc.simulate(*args, t_end=1.0, walls="mirror")
+    r = mc.simulate(*args, t_end=1.0, walls="truncate")
+    assert r.walls == "truncate" and mc.measure(r).attrs["kernel_walls"] == "truncate"
