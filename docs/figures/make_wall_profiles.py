@@ -79,7 +79,11 @@ def main():
                   f"{-out['truncate']['u_z'][k, near] / v_kin[k, near]:.3f}, renormalise "
                   f"{-out['renormalise']['u_z'][k, near] / v_kin[k, near]:.3f}")
         ax.set_xlim(*xlim)
-        ax.set_ylim(bottom=0.0)
+        inside = (g.x >= xlim[0]) & (g.x <= xlim[1])
+        rows = [int(np.argmin(np.abs(g.z - z))) for z in zs]
+        top = max(max(float(np.max(-f["u_z"][k, inside])) for f in out.values())
+                  for k in rows)
+        ax.set_ylim(0.0, 1.15 * max(top, max(float(np.max(v_kin[k, inside])) for k in rows)))
         ax.axvline(g.x_range[1], color="k", lw=1)
         ax.set_xlabel("x (d)")
         ax.set_ylabel("downward particle speed (d per unit time)")
