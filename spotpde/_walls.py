@@ -31,7 +31,7 @@ horizontal coordinates, and with open walls ``phi = 1`` (nothing changes).
 
 This module is private; :func:`spotpde.coefficients.particle_fields` calls it through
 ``walls="renormalise"`` (the default) and ``spotpde.montecarlo`` tabulates the same ``phi``
-for its spots (:func:`coverage_1d`).
+for its spots between vertical walls (:func:`coverage_table`).
 """
 
 from __future__ import annotations
@@ -44,9 +44,8 @@ import scipy.signal
 
 from .grid import Grid
 
-__all__ = ["WALL_TREATMENTS", "check_walls", "renormalises", "coverage", "coverage_1d",
-           "face_value", "marginal", "renormalised_fields", "cutoff_marginal",
-           "coverage_table"]
+__all__ = ["WALL_TREATMENTS", "check_walls", "renormalises", "coverage", "face_value",
+           "renormalised_fields", "cutoff_marginal", "coverage_table"]
 
 #: ``"renormalise"`` (default): a spot's influence is divided by the fraction ``phi`` of its
 #: kernel inside the material, so every step displaces ``V1 dR``; ``"truncate"``: the part
@@ -141,43 +140,6 @@ def face_value(phi: np.ndarray, axis: int, side: int) -> np.ndarray:
     idx = (0, 1, 2, 3) if side < 0 else (-1, -2, -3, -4)
     f0, f1, f2, f3 = (np.take(phi, i, axis=axis) for i in idx)
     return np.clip((35.0 * f0 - 35.0 * f1 + 21.0 * f2 - 5.0 * f3) / 16.0, 1e-300, 1.0)
-
-
-def marginal(kernel, u) -> np.ndarray:
-    """``m(u) = integral w(u, [y,] z) d[y]dz``: the kernel integrated over all but ``x``.
-
-    By quadrature (``scipy.integrate.quad``) of ``kernel.evaluate``, in d**(dims-1).
-    """
-    ry, rz = kernel.reach[0], kernel.reach[1]
-    out = []
-    for x in np.atleast_1d(np.asarray(u, dtype=float)).ravel():
-        if kernel.dims == 2:
-            f = lambda z: float(kernel.evaluate(np.array([x]), np.array([z]))[0])
-            val = scipy.integrate.quad(f, -rz, rz, points=[0.0], limit=200)[0]
-        else:
-            f = lambda z, y: float(kernel.evaluate(np.array([x]), np.array([y]),
-                                                   np.array([z]))[0])
-            val = scipy.integrate.dblquad(f, -ry, ry, -rz, rz)[0]
-        out.append(val)
-    return np.asarray(out).reshape(np.shape(u))
-
-
-def coverage_1d(x0: float, x1: float, s, m_of_u, V1: float, reach: float) -> np.ndarray:
-    """``phi(s) = (1/V1) integral_{x0}^{x1} m(x - s) dx`` for two vertical walls at ``x0, x1``.
-
-    Args:
-        x0, x1: wall positions in d. s: spot positions (array).
-        m_of_u: the marginal ``m(u)`` (callable, vectorised); V1: its integral.
-        reach: ``m(u) = 0`` for ``|u| > reach``.
-    """
-    s = np.asarray(s, dtype=float)
-    out = np.empty(s.shape)
-    for i, si in enumerate(s.ravel()):
-        a, b = max(x0 - si, -reach), min(x1 - si, reach)
-        out.flat[i] = (scipy.integrate.quad(lambda u: float(m_of_u(u)), a, b, limit=200,
-                                            points=[0.0] if a < 0 < b else None)[0]
-                       if b > a else 0.0) / V1
-    return out
 
 
 def renormalised_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: float, conv,

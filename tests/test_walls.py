@@ -182,6 +182,26 @@ def test_monte_carlo_table_matches_the_disk_closed_form():
     np.testing.assert_allclose(tab, 1.0 - seg, atol=1e-12)
 
 
+def test_monte_carlo_table_of_smooth_kernels():
+    """Gaussian: phi = Phi((x1 - s)/sigma) - Phi((x0 - s)/sigma) up to the cut-off (1e-6 of V1).
+
+    Exponential (no closed form): 1/2 on a wall and symmetric, as for every even kernel.
+    """
+    from spotpde import montecarlo as mc
+
+    kp = mc.kernel_params(kernels.Gaussian(sigma=1.0, volume=V1, dims=2, aspect=2.0))
+    x0, dx, tab = _walls.coverage_table("gaussian", kp.size, kp.size_v, kp.amp, kp.reach,
+                                        -3.0, 3.0)
+    xs = x0 + dx * np.arange(tab.size)
+    np.testing.assert_allclose(tab, ndtr(3.0 - xs) - ndtr(-3.0 - xs), atol=2e-5)
+    kp = mc.kernel_params(kernels.Exponential(length=0.5, volume=V1, dims=2))
+    x0, dx, tab = _walls.coverage_table("exponential", kp.size, kp.size_v, kp.amp, kp.reach,
+                                        -8.0, 8.0)   # wider than 2 reaches (6.9 d each)
+    assert tab[0] == pytest.approx(0.5, abs=1e-6) and tab[-1] == pytest.approx(0.5, abs=1e-6)
+    np.testing.assert_allclose(tab, tab[::-1], atol=1e-9)
+    assert tab[tab.size // 2] == pytest.approx(1.0, abs=1e-9)
+
+
 # -- 4. options, bit-for-bit truncation, validation ------------------------------------------
 
 def test_renormalise_changes_nothing_far_from_walls_and_with_open_walls():
