@@ -55,7 +55,8 @@ def case(n: int):
 
 def spotpde_fields(grid, orifice, spots, kernel, rule):
     rho_s = spot_density.steady(grid, orifice, spots)
-    fields = coefficients.particle_fields(grid, rho_s, spots, kernel, rule=rule)
+    # the SciPy reference below truncates the kernel at the walls (kernel.walls = "truncate")
+    fields = coefficients.particle_fields(grid, rho_s, spots, kernel, rule=rule, walls="truncate")
     v_kin = kinematic.speed(grid, orifice, float(spots.b)) * kernel.V1 * orifice.rate_at(0.0)
     return {"rho_s": rho_s, "v_kin": v_kin, **fields}
 

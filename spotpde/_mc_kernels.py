@@ -24,7 +24,8 @@ F_REACHH, F_REACHV = 15, 16                    # kernel support half-widths (x, 
 F_CELL, F_SKIN = 17, 18                        # particle cell size, skin
 F_PX0, F_PZ0, F_PH = 19, 20, 21                # probe grid origin (first centre) and spacing
 F_DT = 22                                      # time per tick
-NF = 23
+F_TAB_X0, F_TAB_DX = 23, 24                    # wall coverage table: first node, spacing
+NF = 25
 # -- int parameters ---------------------------------------------------------------------
 I_SHAPE, I_PROFILE, I_WALLS, I_STEPS = 0, 1, 2, 3
 I_NCX, I_NCZ = 4, 5                            # particle cells
@@ -129,12 +130,14 @@ def advance(fp, ip, cnt, n_ticks,
             sx, sz, sxi,
             px, pz, status, moved, cell_start, cell_idx,
             track_slot, tpos, rec_ticks, levels, lev_next, cross_x, cross_t, exit_x, exit_t,
-            probe, rho_hist):
+            probe, rho_hist, phi_tab):
     """Advance the simulation by at most ``n_ticks`` ticks.
 
     Each tick (duration ``dt = Delta / v_s``): inject ``Poisson(Q0 dt)`` spots on the floor,
     then every active spot makes one step ``dR = (dx, dz)``; each particle within reach of
-    ``r_s + lam dR`` moves by ``-w(r_p - r_s - lam dR) dR`` (eq. discrete, general rule).
+    ``r_s + lam dR`` moves by ``-w(r_p - r_s - lam dR) dR / phi(x_s + lam dx)`` (eq.
+    discrete, general rule; ``phi`` the fraction of the kernel inside the walls, from
+    ``phi_tab``, 1 without).
     Returns early (with ``cnt[C_PENDING]`` set) when the spot arrays are full.
 
     Args:
@@ -150,6 +153,8 @@ def advance(fp, ip, cnt, n_ticks,
         probe: (5, n_batch, pnz, pnx) sums of u_x dt, u_z dt, and the step covariance
             products w^2 (dR - <dR>)(dR - <dR>)^T for D_xx, D_xz, D_zz.
         rho_hist: (n_batch, pnz, pnx) spot-count histogram (one sample per spot per tick).
+        phi_tab: kernel coverage ``phi`` at ``x = tab_x0 + k tab_dx`` (linear
+            interpolation; ``walls = "renormalise"``), or a length-0/1 array: ``phi = 1``.
 
     Returns:
         Number of ticks done.
@@ -163,6 +168,8 @@ def advance(fp, ip, cnt, n_ticks,
     cell = fp[F_CELL]; skin = fp[F_SKIN]
     pxo = fp[F_PX0]; pzo = fp[F_PZ0]; ph = fp[F_PH]
     dt = fp[F_DT]
+    tx0 = fp[F_TAB_X0]; tdx = fp[F_TAB_DX]
+    ntab = phi_tab.size
     shape = ip[I_SHAPE]; profile = ip[I_PROFILE]; walls = ip[I_WALLS]; steps = ip[I_STEPS]
     ncx = ip[I_NCX]; ncz = ip[I_NCZ]; pnx = ip[I_PNX]; pnz = ip[I_PNZ]
     nbatch = ip[I_NBATCH]; ticks_total = ip[I_TICKS_TOTAL]; use_probes = ip[I_PROBES]
@@ -245,6 +252,13 @@ def advance(fp, ip, cnt, n_ticks,
             # centre at which the influence is evaluated
             cx_ = ox + lam * dx
             cz_ = oz + lam * dz
+            # free-volume-conserving walls: influence divided by the kernel's coverage
+            inv_phi = 1.0
+            if ntab > 1:
+                tt = (cx_ - tx0) / tdx
+                kt = min(max(int(math.floor(tt)), 0), ntab - 2)
+                ft = min(max(tt - kt, 0.0), 1.0)
+                inv_phi = 1.0 / ((1.0 - ft) * phi_tab[kt] + ft * phi_tab[kt + 1])
             # ---- particles --------------------------------------------------------------
             if npart > 0:
                 ix_lo = int(math.floor((cx_ - rh - skin - x0) / cell))
@@ -265,6 +279,7 @@ def advance(fp, ip, cnt, n_ticks,
                             w = kernel_w(shape, px[i] - cx_, pz[i] - cz_, ksize, ksizev, kamp, rh, rv)
                             if w == 0.0:
                                 continue
+                            w *= inv_phi
                             cnt[C_UPDATES] += 1
                             oxp = px[i]
                             ozp = pz[i]
@@ -328,6 +343,7 @@ def advance(fp, ip, cnt, n_ticks,
                             w = kernel_w(shape, pxo + jx * ph - cx_, zz, ksize, ksizev, kamp, rh, rv)
                         if w == 0.0:
                             continue
+                        w *= inv_phi
                         probe[0, batch, jz, jx] -= w * dx
                         probe[1, batch, jz, jx] -= w * dz
                         w2 = w * w

@@ -31,6 +31,8 @@ from .grid import WALLS, Grid
 from .parameters import PROFILES, SPOT_MODES, TRACER_MODELS, Orifice, Spots, Tracer, TracerStart
 
 KERNEL_SHAPES = ("uniform", "gaussian", "exponential")
+#: Wall treatments of the influence kernel (``spotpde._walls.WALL_TREATMENTS``).
+KERNEL_WALLS = ("renormalise", "truncate")
 #: Options of the tracer solver (``spotpde.tracer.solve``).
 LIMITERS = ("koren", "vanleer", "mc", "minmod", "weno5", "upwind")
 DIFFUSION_MODES = ("auto", "explicit", "implicit")
@@ -45,7 +47,7 @@ DEFAULTS: dict[str, dict[str, Any]] = {
     "spots": {"drift": 1.0, "b": 1.3, "b_par": 0.0, "mode": "steady", "t_end": 0.0,
               "rho_max": None, "flux": None, "diffusion_scaling": None, "frames": None},
     "kernel": {"shape": "gaussian", "size": 1.0, "volume": 0.05, "height": None,
-               "aspect": 1.0, "rule": 0.5},
+               "aspect": 1.0, "rule": 0.5, "walls": "renormalise"},
     "tracer": {"model": "spot", "start": None, "layers": None, "t_end": 100.0, "frames": 20,
                "limiter": "weno5", "cfl": 0.9, "diffusion": "auto", "snapshots": "auto"},
     "output": {"path": "out.nc"},
@@ -135,6 +137,11 @@ class Case:
     def rule(self) -> float:
         """lam: ``kernel.rule``, or 1 for the void model."""
         return 1.0 if self.model == "void" else float(self.data["kernel"]["rule"])
+
+    @property
+    def kernel_walls(self) -> str:
+        """``kernel.walls``: ``"renormalise"`` (free volume conserved at walls) or ``"truncate"``."""
+        return str(self.data["kernel"].get("walls", "renormalise"))
 
     @property
     def kernel(self):
@@ -602,6 +609,7 @@ class _Validator:
             "volume": self.number("kernel.volume", t["volume"], gt=0),
             "aspect": self.number("kernel.aspect", t["aspect"], gt=0, le=1000),
             "rule": self.number("kernel.rule", t["rule"], gt=0, le=1),
+            "walls": self.choice("kernel.walls", t["walls"], KERNEL_WALLS),
         }
         if t["height"] is not None:
             out["height"] = self.number("kernel.height", t["height"], gt=0, le=1)

@@ -39,6 +39,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import scipy.signal
 
+from . import _walls
 from ._roundoff import clip_roundoff
 from .grid import DIFFUSIVITY_KEYS, DRIFT_KEYS, Grid, derivative
 from .parameters import Spots
@@ -466,7 +467,9 @@ def _general_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: float
 # -- the fields ------------------------------------------------------------------------------
 
 def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: float = 0.5,
-                    spot_diffusivity_tensor: Mapping | None = None) -> dict[str, np.ndarray]:
+                    spot_diffusivity_tensor: Mapping | None = None, *,
+                    walls: str = "renormalise", mask: np.ndarray | None = None
+                    ) -> dict[str, np.ndarray]:
     """Particle drift ``u_p`` and diffusivity ``D_p`` of the spot model.
 
     Implements (PHYSICS.md section 2, derivation in docs/coefficients.md)::
@@ -490,6 +493,12 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
             printed eq. up).
         spot_diffusivity_tensor: optional full spot diffusivity tensor (keys ``D_xx``,
             ``D_xz``, ...; floats or grid arrays) replacing ``diag(D_perp, D_par)``.
+        walls: ``"renormalise"`` (default): a spot's influence is divided by the fraction
+            ``phi`` of its kernel inside the material, so every spot step displaces the
+            particle volume ``V1 dR`` and the particle flux through every height is
+            ``V1 Q0`` (``spotpde._walls``, docs/walls.md); ``"truncate"``: the part of the
+            kernel beyond a reflecting wall displaces nothing. Identical with open walls.
+        mask: optional material indicator for ``phi`` (see ``_walls.coverage``).
 
     Returns:
         ``{"u_x", ["u_y",] "u_z", "D_xx", "D_xz", "D_zz", ["D_yy", "D_xy", "D_yz"]}``:
@@ -503,8 +512,14 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
     v_s = spots.drift
 
     conv = _Convolutions(grid, kernel)
+    phi = None
     constant = np.ndim(v_s) == 0 and all(np.ndim(d) == 0 for d in D_s.values())
-    if constant and min(grid.shape) >= 3:
+    if _walls.renormalises(grid, walls):
+        # free-volume-conserving walls: sources divided by phi (u_p) and phi^2 (D_p)
+        fields = _walls.renormalised_fields(grid, rho_s, v_s, D_s, lam, conv,
+                                            _walls.coverage(grid, kernel, mask))
+        G, phi = fields.pop("_G"), fields.pop("_phi")
+    elif constant and min(grid.shape) >= 3:
         fields = _constant_fields(grid, rho_s, float(v_s), D_s, lam, conv)
         G = {key: None if _is_zero(d) else rho_s * d for key, d in D_s.items()}
     else:
@@ -522,6 +537,8 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
                 if g is None:
                     continue
                 faces = {-1: -_face_value(g, axis, -1), +1: _face_value(g, axis, +1)}
+                if phi is not None:  # renormalised: (D_s rho_s)·n / phi on the wall
+                    faces = {s: v / _walls.face_value(phi, axis, s) for s, v in faces.items()}
                 fields[f"u_{a}"] += (1.0 - 2.0 * lam) * _wall_layer(grid, kernel, n, faces)
     # D_p = w^2 * (rho_s D_s) has a non-negative diagonal; the FFT leaves round-off
     # negatives (~1e-17 of the peak) where it vanishes, which the tracer would reject

@@ -184,7 +184,8 @@ def compare_with_kinematic(case_or_parts, rule: float | None = None, *, z_min: f
 
     Args:
         case_or_parts: a :class:`spotpde.cases.Case`, or a mapping with ``grid``,
-            ``orifice``, ``spots``, ``kernel`` and optionally ``rule`` and ``rho_s``.
+            ``orifice``, ``spots``, ``kernel`` and optionally ``rule``, ``rho_s`` and
+            ``walls`` (``kernel.walls``: ``"renormalise"``, the default, or ``"truncate"``).
         rule: lam for the spot model (default: the case's).
         z_min: lowest compared height, d (default: 10 % of the height, away from the
             orifice singularity; fits need at least 3 heights). Heights within the
@@ -216,7 +217,10 @@ def compare_with_kinematic(case_or_parts, rule: float | None = None, *, z_min: f
         shared["kin"] = {k: v * flux for k, v in kin.items()}
     kin = shared["kin"]
 
-    fields = coefficients.particle_fields(grid, rho_s, spots, kernel, rule=lam)
+    # kernel.walls of a case (a mapping may give "walls"); default: renormalise
+    walls = (case_or_parts.get("walls", "renormalise") if isinstance(case_or_parts, Mapping)
+             else getattr(case_or_parts, "kernel_walls", "renormalise"))
+    fields = coefficients.particle_fields(grid, rho_s, spots, kernel, rule=lam, walls=walls)
     flow = coefficients.flux_velocity(grid, fields)
     defect_field = coefficients.incompressibility_defect(grid, fields)
 

@@ -261,6 +261,7 @@ class MCResult:
             ``rho_hist``: ``(n_batch, nz, nx)`` spot samples; ``batch_ticks``: ticks per batch.
         counters: injected spots, spot steps, particle updates, cell-list rebuilds.
         wall_time, cpu_time: wall-clock and CPU seconds spent in the numba loop.
+        walls: the wall treatment (``"renormalise"`` or ``"truncate"``).
     """
 
     grid: Grid
@@ -292,6 +293,7 @@ class MCResult:
     counters: dict = field(default_factory=dict)
     wall_time: float = 0.0
     cpu_time: float = 0.0
+    walls: str = "renormalise"
 
     @property
     def performance(self) -> dict:
@@ -322,7 +324,8 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
              gamma: float = 0.0, step: float | None = None, steps: str = "gaussian",
              probes: bool = True, batches: int = 20, records: int = 20,
              levels: np.ndarray | None = None, skin: float | None = None,
-             cutoff: float = CUTOFF, progress: Callable[[float], None] | None = None) -> MCResult:
+             cutoff: float = CUTOFF, progress: Callable[[float], None] | None = None,
+             walls: str = "renormalise") -> MCResult:
     """Run the discrete spot model in the box of ``grid``.
 
     Args:
@@ -351,6 +354,11 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
         skin: cell-list skin in d (default 0.5).
         cutoff: relative cut-off of smooth kernels (see :func:`kernel_params`).
         progress: called with the fraction done.
+        walls: ``"renormalise"`` (default): every displacement is divided by the fraction
+            ``phi`` of the kernel between the reflecting walls, evaluated at the spot's
+            ``x_s + lam dx`` (tabulated, ``_walls.coverage_table``), so a spot step
+            displaces ``V1 dR``; ``"truncate"``: the kernel beyond a wall displaces
+            nothing. Identical with open walls (docs/walls.md).
 
     Returns:
         :class:`MCResult`.
@@ -385,6 +393,8 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
         problems.append(f"kernel.rule: must be in [0, 1], got {rule}")
     if (t_end is None) == (n_spots is None):
         problems.append("montecarlo.t_end: give exactly one of t_end and n_spots")
+    if walls not in ("renormalise", "truncate"):
+        problems.append(f'kernel.walls: must be one of "renormalise", "truncate", got {walls!r}')
     if problems:
         raise CaseError(problems)
     kp = kernel_params(kernel, cutoff)
@@ -420,6 +430,13 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
     fp[[K.F_CELL, K.F_SKIN]] = cell, skin
     fp[[K.F_PX0, K.F_PZ0, K.F_PH]] = grid.x[0], grid.z[0], grid.spacing
     fp[K.F_DT] = dt
+    phi_tab = np.zeros(0)
+    if walls == "renormalise" and grid.walls == "reflecting":
+        from ._walls import coverage_table
+
+        name = {c: n for n, c in _SHAPE_CODES.items()}[kp.shape]
+        fp[K.F_TAB_X0], fp[K.F_TAB_DX], phi_tab = coverage_table(
+            name, kp.size, kp.size_v, kp.amp, kp.reach, x0, x1)
     ip = np.zeros(K.NI, np.int64)
     ip[K.I_SHAPE] = kp.shape
     ip[K.I_PROFILE] = profile
@@ -490,7 +507,7 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
         c0 = time.process_time()
         K.advance(fp, ip, cnt, todo, sx, sz, sxi, px, pz, status, moved, cell_start, cell_idx,
                   track_slot, tpos, rec_ticks, levels, lev_next, cross_x, cross_t, exit_x, exit_t,
-                  probe, rho_hist)
+                  probe, rho_hist, phi_tab)
         wall += time.perf_counter() - t0
         cpu += time.process_time() - c0
         if cnt[K.C_PENDING] >= 0:  # spot arrays full: grow and carry on
@@ -512,7 +529,7 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
         counters={"spots_injected": int(cnt[K.C_INJECTED]), "spot_steps": int(cnt[K.C_STEPS]),
                   "particle_updates": int(cnt[K.C_UPDATES]),
                   "cell_rebuilds": int(cnt[K.C_REBUILDS]), "spots_removed": int(cnt[K.C_REMOVED])},
-        wall_time=wall, cpu_time=cpu,
+        wall_time=wall, cpu_time=cpu, walls=walls,
     )
 
 
@@ -546,6 +563,7 @@ def from_case(case, *, particles="lattice", spacing: float = 1.0, **kwargs) -> M
             raise CaseError("tracer.t_end: give t_end or n_spots for a case without [tracer]")
         kwargs["t_end"] = case.tracer.t_end
     kwargs.setdefault("rule", case.rule)
+    kwargs.setdefault("walls", getattr(case, "kernel_walls", "renormalise"))
     if case.model == "void":
         # a void moves one particle diameter per step, so it never displaces a particle twice
         kwargs.setdefault("step", 1.0)
@@ -703,6 +721,7 @@ def measure(result: MCResult, tracer: bool = True) -> xr.Dataset:
         "V1": kp.V1, "V2": kp.V2, "rule": result.rule, "gamma": result.gamma,
         "step": result.step, "t_end": result.t_end, "seed": result.seed,
         "steps": result.steps, "source": "montecarlo", "spotpde_version": __version__,
+        "kernel_walls": result.walls,
         **{k: v for k, v in result.counters.items()},
         **{k: v for k, v in result.performance.items()},
     })
