@@ -29,8 +29,8 @@ import numpy as np
 from _timing import best_times
 from scipy.signal import fftconvolve
 
-from spotpde import _fft, kernels
-from spotpde.convolution import convolve
+from spotpde.fields import _fft, kernels
+from spotpde.fields.convolution import convolve
 
 
 def full_stencil(n, dims):

@@ -37,9 +37,10 @@ from scipy.linalg import solve_banded
 from scipy.signal import fftconvolve
 from scipy.special import erf
 
-from spotpde import coefficients, kernels, kinematic, spot_density
+from spotpde.fields import coefficients, kernels
+from spotpde.density import kinematic, spot_density
 from spotpde.grid import Grid
-from spotpde.orifice import source_profile
+from spotpde.density.orifice import source_profile
 from spotpde.parameters import Orifice, Spots
 
 

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import argparse
 
-from spotpde import kernels
+from spotpde.fields import kernels
 from spotpde import montecarlo as mc
 from spotpde.grid import Grid
 from spotpde.parameters import Orifice, Spots

@@ -20,7 +20,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from spotpde import pair
-from spotpde.kernels import Uniform
+from spotpde.fields.kernels import Uniform
 
 
 def main():

@@ -38,9 +38,9 @@ import scipy.sparse.linalg as spla
 from _timing import best_time
 from scipy.linalg import solve_banded
 
-from spotpde import _elliptic, spot_density
+from spotpde.density import _elliptic, spot_density
 from spotpde.grid import Grid
-from spotpde.orifice import source_profile
+from spotpde.density.orifice import source_profile
 from spotpde.parameters import Orifice, Spots
 
 

@@ -22,9 +22,9 @@ import numba
 import numpy as np
 from _timing import best_time
 
-from spotpde import _fp_kernels as K
+from spotpde.tracer import _fp_kernels as K
 from spotpde import tracer
-from spotpde._timestepping import SSPRK3
+from spotpde.tracer._timestepping import SSPRK3
 from spotpde.grid import Grid
 
 

@@ -27,7 +27,7 @@ import argparse
 import numpy as np
 from _timing import best_times
 
-from spotpde import spot_density, traffic
+from spotpde.density import spot_density, traffic
 from spotpde.grid import Grid
 from spotpde.parameters import Orifice, Spots
 

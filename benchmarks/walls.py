@@ -17,7 +17,8 @@ from __future__ import annotations
 import argparse
 import time
 
-from spotpde import coefficients, kernels, spot_density
+from spotpde.fields import coefficients, kernels
+from spotpde.density import spot_density
 from spotpde.grid import Grid
 from spotpde.parameters import Orifice, Spots
 

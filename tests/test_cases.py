@@ -14,8 +14,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import spotpde
-from spotpde import cases
-from spotpde.cases import DEFAULTS, dump_toml, load_case
+from spotpde.app import cases
+from spotpde.app.cases import DEFAULTS, dump_toml, load_case
 
 ROOT = Path(__file__).resolve().parents[1]
 CASE_FILES = sorted((ROOT / "cases").glob("*.toml"))

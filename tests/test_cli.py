@@ -16,9 +16,9 @@ import pytest
 import xarray as xr
 
 import spotpde
-from spotpde import cli, pipeline
-from spotpde import io as sio
-from spotpde.cases import load_case
+from spotpde.app import cli, pipeline
+from spotpde.app import io as sio
+from spotpde.app.cases import load_case
 
 ROOT = Path(__file__).resolve().parents[1]
 CASE_FILES = sorted((ROOT / "cases").glob("*.toml"))
@@ -248,7 +248,7 @@ def test_plot_of_unreadable_input_exits_2(tmp_path, capsys):
 # -- the real process ---------------------------------------------------------------
 
 def _spotpde(*args, **kwargs):
-    return subprocess.run([sys.executable, "-m", "spotpde.cli", *args], capture_output=True,
+    return subprocess.run([sys.executable, "-m", "spotpde", *args], capture_output=True,
                           text=True, timeout=120, **kwargs)
 
 

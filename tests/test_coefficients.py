@@ -17,8 +17,8 @@ import pytest
 from numpy.polynomial.legendre import leggauss
 from scipy import integrate
 
-from spotpde import coefficients as C
-from spotpde import kernels
+from spotpde.fields import coefficients as C
+from spotpde.fields import kernels
 from spotpde.grid import Grid
 from spotpde.parameters import Spots
 
@@ -338,7 +338,7 @@ def test_constant_coefficient_path_equals_general_path(dims, rule):
 
 def test_3d_point_orifice_fields_are_symmetric():
     """Rotating the silo by 90 degrees about z swaps x and y: u_x(z, y, x) = u_y(z, x, y)."""
-    from spotpde import spot_density
+    from spotpde.density import spot_density
     from spotpde.parameters import Orifice
 
     grid = Grid(3, (-6.0, 6.0), (0.0, 8.0), 0.5, walls="reflecting")
@@ -360,8 +360,8 @@ def test_diagonal_diffusivity_is_never_negative_where_spots_vanish():
     """Far from a slot the spot density underflows to 0 and the FFT leaves round-off
     negatives (~-5e-18) in w^2 * (rho_s D_s); D_p's diagonal must still be >= 0 (the
     tracer rejects negative diffusivities), while real values are untouched."""
-    from spotpde import spot_density
-    from spotpde.convolution import convolve
+    from spotpde.density import spot_density
+    from spotpde.fields.convolution import convolve
     from spotpde.parameters import Orifice
 
     grid = Grid(2, (-48.0, 48.0), (0.0, 4.0), 0.125)

@@ -14,7 +14,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from spotpde import cli, comparison, kernels
+from spotpde.app import cli
+from spotpde.analysis import comparison
+from spotpde.fields import kernels
 from spotpde.grid import Grid
 from spotpde.parameters import Orifice, Spots
 

@@ -7,9 +7,9 @@ import itertools
 import numpy as np
 import pytest
 
-from spotpde import _fft
-from spotpde import kernels as K
-from spotpde.convolution import Convolver, convolve, fft_shape
+from spotpde.fields import _fft
+from spotpde.fields import kernels as K
+from spotpde.fields.convolution import Convolver, convolve, fft_shape
 
 BACKENDS = ["scipy"] + (["pyfftw"] if _fft.HAVE_PYFFTW else [])
 

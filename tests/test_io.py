@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from spotpde import io
+from spotpde.app import io
 from spotpde.grid import Grid
 
 

@@ -7,8 +7,8 @@ import pytest
 from scipy import integrate
 from scipy.signal import fftconvolve
 
-from spotpde import kernels as K
-from spotpde.convolution import convolve
+from spotpde.fields import kernels as K
+from spotpde.fields.convolution import convolve
 
 KERNELS = [
     K.Uniform(radius=2.5, height=0.0024, dims=2, aspect=1.0),

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from spotpde import kinematic
+from spotpde.density import kinematic
 from spotpde.errors import CaseError
 from spotpde.grid import Grid
 from spotpde.parameters import Orifice

@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 import spotpde
-from spotpde import layers
+from spotpde.analysis import layers
 
 
 def small(path, limiter="weno5"):

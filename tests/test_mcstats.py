@@ -17,7 +17,9 @@ import numpy as np
 import pytest
 
 import spotpde
-from spotpde import kernels, mcstats, pipeline
+from spotpde.fields import kernels
+from spotpde.montecarlo import mcstats
+from spotpde.app import pipeline
 from spotpde import montecarlo as mc
 from spotpde.grid import Grid
 from spotpde.parameters import Orifice, Spots
@@ -168,7 +170,7 @@ def test_layer_sharpness_full_grid_matches_the_particles():
     particles (mean of 3 seeds) times exp(-k^2 s^2 / 2), s the continuum's own edge width
     (layers.interface_width), within 10 %, for t <= 300 (two-sided, as on the 0.5 d grid
     of the notebook's small configuration)."""
-    from spotpde import layers
+    from spotpde.analysis import layers
 
     case = spotpde.load_case(ROOT / "cases" / "montecarlo_layers.toml")
     data = copy.deepcopy(case.data)

@@ -12,7 +12,8 @@ import math
 import numpy as np
 import pytest
 
-from spotpde import coefficients, kernels, spot_density, void
+from spotpde.fields import coefficients, kernels, void
+from spotpde.density import spot_density
 from spotpde import montecarlo as mc
 from spotpde.errors import CaseError
 from spotpde.grid import Grid

@@ -6,7 +6,7 @@ from scipy.special import erf
 
 from spotpde.errors import CaseError
 from spotpde.grid import Grid
-from spotpde.orifice import cosine_coefficients, rate_from_table, source_profile
+from spotpde.density.orifice import cosine_coefficients, rate_from_table, source_profile
 from spotpde.parameters import Orifice
 
 

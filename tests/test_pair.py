@@ -17,7 +17,7 @@ import pytest
 import scipy.sparse.linalg as spla
 
 from spotpde import pair
-from spotpde.kernels import Exponential, Gaussian, Uniform
+from spotpde.fields.kernels import Exponential, Gaussian, Uniform
 
 # a kernel so narrow that C = 0 beyond contact: B = 2 b_p is constant in the annulus
 POINT = Gaussian(sigma=0.01, volume=0.05)
@@ -159,9 +159,9 @@ def test_anisotropic_kernel_enters_by_scaled_separation():
 
 def test_stationary_density_is_inverse_B_on_a_closed_domain():
     # no absorption: the chain is closed; its stationary P satisfies B P = const (Ito)
-    mesh = pair._mesh(1.0, 2.0, 1 / 8)
+    mesh = pair._solver._mesh(1.0, 2.0, 1 / 8)
     B = pair.mean_field_tensor(DISK, 1.3, 0.9, mesh.cx, mesh.cz)
-    Q, kill, index = pair._generator(mesh, B, 2.0, absorbing=False)
+    Q, kill, index = pair._solver._generator(mesh, B, 2.0, absorbing=False)
     assert np.all(kill == 0)
     n = Q.shape[0]
     # the null vector of Q^T: replace one equation by the normalisation
@@ -327,7 +327,7 @@ def test_cli_bad_pair_exits_2_without_output(tmp_path):
     out = tmp_path / "out.nc"
     case.write_text('[pair]\nx = 0.0\nz = 10.0\nstart = { x = 0.5, z = 0.0 }\n'
                     f'[output]\npath = "{out}"\n')
-    proc = subprocess.run([sys.executable, "-m", "spotpde.cli", "run", str(case)],
+    proc = subprocess.run([sys.executable, "-m", "spotpde", "run", str(case)],
                           capture_output=True, text=True)
     assert proc.returncode == 2
     assert proc.stderr.strip().splitlines() == [
@@ -341,7 +341,7 @@ ANGLES = np.array([0.0, np.pi / 4, np.pi / 2])
 
 
 def _probe_table(kernel, rule, spots, seed=11):
-    from spotpde import _pair_mc
+    from spotpde.pair import _mc as _pair_mc
 
     R, A = np.meshgrid(RADII, ANGLES, indexing="ij")
     tab = _pair_mc.probe_tensor(kernel, 1.3, rule, (R * np.cos(A)).ravel(),
@@ -354,7 +354,7 @@ def _probe_table(kernel, rule, spots, seed=11):
 def test_frozen_pair_tensor_rule_one_near_mean_field_rule_half_far_below():
     k = Uniform(radius=2.5, height=0.01)
     mf = pair.mean_field_tensor(k, 1.3, 0.0, X=1.5, Z=0.0)["xx"]
-    from spotpde import _pair_mc
+    from spotpde.pair import _mc as _pair_mc
 
     one = _pair_mc.probe_tensor(k, 1.3, 1.0, [1.5], [0.0], spots=40_000, seed=1)
     half = _pair_mc.probe_tensor(k, 1.3, 0.5, [1.5], [0.0], spots=40_000, seed=2)
@@ -373,7 +373,7 @@ def test_monte_carlo_cage_breaking_against_the_equation():
     # contact. The hard core reflects along B n (conormal), the reflection whose density
     # obeys the zero-Ito-flux condition. Reference: the 2D equation with the discrete
     # model's own B(r), measured on frozen pairs (3 radii x 3 angles).
-    from spotpde import _pair_mc
+    from spotpde.pair import _mc as _pair_mc
 
     k = Uniform(radius=2.5, height=0.03)
     mf = pair.cage_breaking(k, 1.3, diffusivity="mean-field").attrs["mean_fall"]
@@ -396,7 +396,7 @@ def test_monte_carlo_cage_breaking_against_the_equation():
 @pytest.mark.slow
 def test_monte_carlo_rule_half_agrees_with_passage():
     pytest.importorskip("spotpde._passage")
-    from spotpde import _pair_mc
+    from spotpde.pair import _mc as _pair_mc
 
     k = Uniform(radius=2.5, height=0.03)
     ds = pair.cage_breaking(k, 1.3, rule=0.5, diffusivity="passage")

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 import spotpde
-from spotpde import pipeline
-from spotpde.cases import load_case
+from spotpde.app import pipeline
+from spotpde.app.cases import load_case
 from spotpde.grid import Grid
 from spotpde.parameters import TracerStart
 
@@ -93,11 +93,11 @@ def fakes(monkeypatch):
                                      P_height=np.full(grid.shape, 0.5))
 
     mods = {
-        "spotpde.spot_density": types.SimpleNamespace(solve=solve_rho),
-        "spotpde.coefficients": types.SimpleNamespace(particle_fields=particle_fields),
-        "spotpde.kinematic": types.SimpleNamespace(speed=unit_speed),
+        "spotpde.density.spot_density": types.SimpleNamespace(solve=solve_rho),
+        "spotpde.fields.coefficients": types.SimpleNamespace(particle_fields=particle_fields),
+        "spotpde.density.kinematic": types.SimpleNamespace(speed=unit_speed),
         "spotpde.tracer": types.SimpleNamespace(solve=tracer_solve),
-        "spotpde.void": types.SimpleNamespace(particle_fields=void_fields),
+        "spotpde.fields.void": types.SimpleNamespace(particle_fields=void_fields),
     }
     for name, mod in mods.items():
         monkeypatch.setitem(sys.modules, name, mod)
@@ -163,7 +163,7 @@ def test_nan_from_a_solver_is_a_numerical_error(fakes, monkeypatch):
         out[2, 3] = np.nan
         return out
 
-    monkeypatch.setattr(sys.modules["spotpde.spot_density"], "solve", bad)
+    monkeypatch.setattr(sys.modules["spotpde.density.spot_density"], "solve", bad)
     with pytest.raises(spotpde.NumericalError, match="rho_s: 1 values are NaN"):
         spotpde.run(load_case(small()))
 
@@ -232,7 +232,7 @@ def test_real_pipeline_void_model_3d():
 
 def test_roundoff_negatives_of_rho_s_are_cleared_and_solver_refusals_are_numerical(
         fakes, monkeypatch):
-    solve = sys.modules["spotpde.spot_density"].solve
+    solve = sys.modules["spotpde.density.spot_density"].solve
 
     def noisy(grid, orifice, spots, progress=None):
         rho = solve(grid, orifice, spots, progress)
@@ -240,7 +240,7 @@ def test_roundoff_negatives_of_rho_s_are_cleared_and_solver_refusals_are_numeric
         rho[1, 0] = -0.5 * rho.max()
         return rho
 
-    monkeypatch.setattr(sys.modules["spotpde.spot_density"], "solve", noisy)
+    monkeypatch.setattr(sys.modules["spotpde.density.spot_density"], "solve", noisy)
     ds = spotpde.run(load_case(small(tracer=None)))
     assert float(ds.rho_s[0, 0]) == 0.0
     assert float(ds.rho_s[1, 0]) < 0          # a real negative is not hidden
@@ -254,7 +254,9 @@ def test_roundoff_negatives_of_rho_s_are_cleared_and_solver_refusals_are_numeric
 
 
 def test_tracer_options_match_the_tracer_solver():
-    from spotpde import _advection, cases, tracer
+    from spotpde.tracer import _advection
+    from spotpde.app import cases
+    from spotpde import tracer
 
     assert set(cases.LIMITERS) == set(_advection.LIMITERS)
     assert set(cases.DIFFUSION_MODES) == set(tracer.DIFFUSION_MODES)

@@ -5,12 +5,12 @@ import pytest
 from scipy.integrate import quad_vec
 from scipy.special import erf, k0
 
-from spotpde import _elliptic, _marching, _transient
-from spotpde import spot_density as sd
+from spotpde.density import _elliptic, _marching, _transient
+from spotpde.density import spot_density as sd
 from spotpde.errors import CaseError
 from spotpde.grid import Grid
-from spotpde.kinematic import point_source
-from spotpde.orifice import rate_from_table, source_profile
+from spotpde.density.kinematic import point_source
+from spotpde.density.orifice import rate_from_table, source_profile
 from spotpde.parameters import Orifice, Spots
 
 
@@ -247,7 +247,7 @@ def test_exact_modes_with_d_par_conserve_flux_and_match_finite_volumes(dims):
 
 def test_mode_profile_solves_its_ode():
     """G'' b_par - G' - b k^2 G = 0, G - b_par G' = 1 at z = 0, G'(H) = 0 (finite differences)."""
-    from spotpde._spectral import mode_profile
+    from spotpde.density._spectral import mode_profile
     b, bp, H, e = 1.3, 0.8, 6.0, 1e-4
     for k2 in (0.0, 0.3, 4.0):
         G = lambda z: mode_profile(np.array(k2), np.asarray(z, float), b, bp, H)
@@ -363,7 +363,7 @@ def test_py_pde_runge_kutta_agrees_with_bdf2():
 
 
 def test_py_pde_numba_rhs_matches_operator():
-    from spotpde._pde import SpotDensityPDE
+    from spotpde.density._pde import SpotDensityPDE
     import pde
     g = Grid(2, (-2, 2), (0, 3), 0.25)
     Z, X = g.mesh()

@@ -7,8 +7,9 @@ import pytest
 import xarray as xr
 
 import spotpde
-from spotpde import cases, tracer
-from spotpde.cli import main
+from spotpde.app import cases
+from spotpde import tracer
+from spotpde.app.cli import main
 from spotpde.errors import CaseError
 
 SMALL = {

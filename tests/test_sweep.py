@@ -9,8 +9,8 @@ import pytest
 import xarray as xr
 
 import spotpde
-from spotpde import sweep
-from spotpde.cli import main
+from spotpde.app import sweep
+from spotpde.app.cli import main
 from spotpde.errors import CaseError, NumericalError
 
 BASE = {

@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 
 from spotpde import tracer
-from spotpde._advection import LIMITERS
+from spotpde.tracer import _solve
+from spotpde.tracer._advection import LIMITERS
 from spotpde.grid import Grid
 
 
@@ -110,7 +111,7 @@ def random_problem(dims, nz, nx, seed, cross):
     r2 = sum((m - c) ** 2 for m, c in zip(mesh, centre))
     # scaled far from 1, so that the WENO weights' scale 1 / max(P)**2 matters
     P = 1e-3 * (np.exp(-r2 / 2.0) + 0.3 * rng.random(grid.shape) ** 4)
-    return grid, tracer._check_fields(grid, fields, "fields"), np.ascontiguousarray(P)
+    return grid, _solve._check_fields(grid, fields, "fields"), np.ascontiguousarray(P)
 
 
 @pytest.mark.parametrize("name", list(LIMITERS))
@@ -120,7 +121,7 @@ def random_problem(dims, nz, nx, seed, cross):
 def test_rhs_kernel_matches_reference(name, dims, nz, nx, cross):
     grid, f, P = random_problem(dims, nz, nx, seed=dims * 10000 + nz * 100 + nx, cross=cross)
     outlet = np.ones(grid.shape[1:], bool)
-    op = tracer._Operator(grid, f, LIMITERS[name].code, outlet, implicit=False,
+    op = _solve._Operator(grid, f, LIMITERS[name].code, outlet, implicit=False,
                           p_scale=P.max())
     assert op.has_cross == cross
     want_R, want_edge, want_acc = reference(name, op, P, w=0.7)
@@ -129,9 +130,9 @@ def test_rhs_kernel_matches_reference(name, dims, nz, nx, cross):
         saved = numba.get_num_threads()
         numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
         try:
-            ws = tracer._Workspace(grid)
+            ws = _solve._Workspace(grid)
             ws.Fz_acc[:] = 1.0
-            rates = tracer._rhs(op, P, ws, 0.7)
+            rates = _solve._rhs(op, P, ws, 0.7)
         finally:
             numba.set_num_threads(saved)
         np.testing.assert_allclose(ws.R, want_R, rtol=0, atol=1e-12 * scale)
@@ -150,18 +151,18 @@ def test_rhs_kernel_matches_reference(name, dims, nz, nx, cross):
 def test_fused_stages_equal_explicit_runge_kutta(dims, scheme_name):
     """The 2D kernel writes each Runge-Kutta stage in the same pass as the right-hand side;
     the step must equal the textbook composition of right-hand sides."""
-    from spotpde._timestepping import scheme_from_name
+    from spotpde.tracer._timestepping import scheme_from_name
 
     scheme = scheme_from_name(scheme_name)
     grid, f, P = random_problem(dims, 37 if dims == 2 else 9, 11 if dims == 2 else 7,
                                 seed=7, cross=True)
-    op = tracer._Operator(grid, f, LIMITERS["weno5"].code, np.ones(grid.shape[1:], bool),
+    op = _solve._Operator(grid, f, LIMITERS["weno5"].code, np.ones(grid.shape[1:], bool),
                           implicit=False, p_scale=P.max())
     dt = 0.5 / op.rate
-    ws = tracer._Workspace(grid, P.max())
+    ws = _solve._Workspace(grid, P.max())
 
     def R(Q):
-        tracer._rhs(op, Q, ws, 0.0)
+        _solve._rhs(op, Q, ws, 0.0)
         return ws.R.copy()
 
     want = P.copy()
@@ -169,7 +170,7 @@ def test_fused_stages_equal_explicit_runge_kutta(dims, scheme_name):
     for a in scheme.alpha:
         prev = a * P + (1 - a) * (prev + dt * R(prev))
     budget = [0.0, 0.0, 0.0]
-    got = tracer._rk_step([op] * scheme.stages, P.copy(), dt, scheme, ws, budget)
+    got = _solve._rk_step([op] * scheme.stages, P.copy(), dt, scheme, ws, budget)
     np.testing.assert_allclose(got, prev, rtol=0, atol=1e-13 * np.abs(want).max())
     assert (got >= 0).all()
 
@@ -178,14 +179,14 @@ def test_fused_stages_equal_explicit_runge_kutta(dims, scheme_name):
 def test_nan_reaches_the_stage_output(dims):
     """A NaN in P must survive the selects and fastmath of the kernels, so that the solver
     sees a blow-up instead of writing a silently wrong field."""
-    from spotpde._timestepping import scheme_from_name
+    from spotpde.tracer._timestepping import scheme_from_name
 
     grid, f, P = random_problem(dims, 37 if dims == 2 else 9, 11 if dims == 2 else 7,
                                 seed=3, cross=True)
     where = (20, 5) if dims == 2 else (4, 3, 3)
     P[where] = np.nan
-    op = tracer._Operator(grid, f, LIMITERS["koren"].code, np.ones(grid.shape[1:], bool),
+    op = _solve._Operator(grid, f, LIMITERS["koren"].code, np.ones(grid.shape[1:], bool),
                           implicit=False)
-    ws = tracer._Workspace(grid)
-    out = tracer._rk_step([op] * 3, P, 1e-3, scheme_from_name("ssprk3"), ws, [0.0, 0.0, 0.0])
+    ws = _solve._Workspace(grid)
+    out = _solve._rk_step([op] * 3, P, 1e-3, scheme_from_name("ssprk3"), ws, [0.0, 0.0, 0.0])
     assert np.isnan(out[where])

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from spotpde import _traffic as T
-from spotpde import noise, spot_density, traffic
+from spotpde.density import _traffic as T
+from spotpde.density import noise, spot_density, traffic
 from spotpde.grid import Grid
 from spotpde.parameters import Orifice, Spots
 
@@ -279,7 +279,7 @@ def test_noise_reproducible_and_statistics():
 def test_free_volume_local_limit():
     """w * rho_s = V1 (rho_s + (R**2/8) d2 rho_s/dz2) + O(k**4) for the uniform disk
     (second moment V1 R**2 / 4 per axis), away from the walls."""
-    from spotpde import kernels
+    from spotpde.fields import kernels
 
     g = Grid(2, (-20.0, 20.0), (0.0, 40.0), 0.25, "reflecting")
     Z, X = np.broadcast_arrays(*g.mesh())
@@ -357,7 +357,7 @@ def test_run_dataset_variables(tmp_path):
 ])
 def test_bad_input_exit_2(tmp_path, kwargs, key):
     path = _case(tmp_path, **kwargs)
-    proc = subprocess.run([sys.executable, "-m", "spotpde.cli", "check", str(path)],
+    proc = subprocess.run([sys.executable, "-m", "spotpde", "check", str(path)],
                           capture_output=True, text=True, cwd=tmp_path, env=ENV)
     assert proc.returncode == 2
     assert key in proc.stderr and "Traceback" not in proc.stderr
@@ -367,7 +367,7 @@ def test_bad_input_exit_2(tmp_path, kwargs, key):
 def test_negative_noise_amplitude_exit_2(tmp_path):
     p = _case(tmp_path)
     p.write_text(p.read_text().replace("amplitude = 0.3", "amplitude = -0.3"))
-    proc = subprocess.run([sys.executable, "-m", "spotpde.cli", "run", str(p)],
+    proc = subprocess.run([sys.executable, "-m", "spotpde", "run", str(p)],
                           capture_output=True, text=True, cwd=tmp_path, env=ENV)
     assert proc.returncode == 2
     assert proc.stderr.count("\n") == 1 and "orifice.noise.amplitude" in proc.stderr
@@ -378,7 +378,7 @@ def test_steady_with_rho_max_exit_2(tmp_path):
     p = _case(tmp_path, mode="steady", t_end=0.0)
     text = p.read_text().replace("noise = {", "# noise = {").replace("frames = 11", "")
     p.write_text(text)
-    proc = subprocess.run([sys.executable, "-m", "spotpde.cli", "check", str(p)],
+    proc = subprocess.run([sys.executable, "-m", "spotpde", "check", str(p)],
                           capture_output=True, text=True, cwd=tmp_path, env=ENV)
     assert proc.returncode == 2
     assert proc.stderr.startswith("spots.rho_max:") and proc.stderr.count("\n") == 1

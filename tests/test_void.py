@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from spotpde import kinematic, void
+from spotpde.density import kinematic
+from spotpde.fields import void
 from spotpde.grid import Grid
 from spotpde.parameters import Spots
 

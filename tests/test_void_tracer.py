@@ -15,7 +15,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from spotpde import tracer, void
+from spotpde import tracer
+from spotpde.fields import void
 from spotpde.grid import Grid
 from spotpde.parameters import Spots
 

@@ -23,7 +23,8 @@ from scipy import integrate, stats
 from scipy.special import ndtr
 
 import spotpde
-from spotpde import _walls, coefficients as C, kernels, spot_density
+from spotpde.fields import _walls, coefficients as C, kernels
+from spotpde.density import spot_density
 from spotpde.grid import Grid
 from spotpde.parameters import Orifice, Spots
 
@@ -237,7 +238,7 @@ def test_bad_walls_argument_and_case_key():
 
 
 def test_cli_check_rejects_a_bad_wall_treatment(tmp_path, capsys):
-    from spotpde import cli
+    from spotpde.app import cli
 
     bad = tmp_path / "bad.toml"
     bad.write_text('[kernel]\nwalls = "reflect"\n')
@@ -364,7 +365,7 @@ def test_renormalised_wall_layer_matches_the_discrete_rule(rule):
 
 
 def test_kinematic_comparison_reports_the_flux_of_the_wall_treatment():
-    from spotpde import comparison
+    from spotpde.analysis import comparison
 
     g = Grid(2, (-4.0, 4.0), (0.0, 24.0), 0.25)
     parts = dict(grid=g, orifice=Orifice(x=0.0, width=2.0, rate=1.0), spots=Spots(b=1.3),

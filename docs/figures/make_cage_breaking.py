@@ -8,7 +8,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from spotpde import pair  # noqa: E402
-from spotpde.kernels import Uniform  # noqa: E402
+from spotpde.fields.kernels import Uniform  # noqa: E402
 
 disk = Uniform(radius=2.5, height=0.0024)
 fig, ax = plt.subplots(1, 2, figsize=(9, 3.4))

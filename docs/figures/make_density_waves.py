@@ -21,7 +21,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 import spotpde  # noqa: E402
-from spotpde import traffic  # noqa: E402
+from spotpde.density import traffic  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 

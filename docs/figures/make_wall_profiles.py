@@ -24,7 +24,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 import spotpde  # noqa: E402
-from spotpde import coefficients, kinematic, spot_density  # noqa: E402
+from spotpde.fields import coefficients
+from spotpde.density import kinematic, spot_density  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 OUT = Path(__file__).resolve().parent / "wall_profiles.png"

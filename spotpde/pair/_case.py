@@ -18,7 +18,7 @@ def local_lengths(ds, x, z) -> dict:
     Raises:
         spotpde.NumericalError: the particles do not fall there (``u_z >= 0``).
     """
-    from .errors import NumericalError
+    from ..errors import NumericalError
 
     at = ds[["D_xx", "D_xz", "D_zz", "u_z"]].interp(x=float(x), z=float(z))
     speed = -float(at["u_z"])
@@ -38,7 +38,7 @@ def add_to_result(case, ds):
     uniform-flow value). Variables get the prefix ``pair_`` (dims ``pair_fall``,
     ``pair_frame``, ``pair_Z``, ``pair_X``), attributes too (``pair_mean_fall``, ...).
     """
-    from .kernels import Uniform
+    from ..fields.kernels import Uniform
 
     p = case.data["pair"]
     b_p = local_lengths(ds, p["x"], p["z"])
@@ -60,7 +60,7 @@ def add_to_result(case, ds):
     start = p.get("start")
     if isinstance(start, dict):
         start = (start["x"], start["z"])
-    from .pair import cage_breaking
+    from ..pair import cage_breaking
 
     res = cage_breaking(kernel, b, rule=case.rule, b_par=b_par, diffusivity=diffusivity,
                         contact=p["contact"], separation=p["separation"], start=start,

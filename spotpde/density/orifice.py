@@ -31,9 +31,9 @@ from typing import Callable, Sequence
 import numpy as np
 from scipy.special import erf, j1
 
-from .errors import CaseError
-from .grid import Grid
-from .parameters import PROFILES, Orifice
+from ..errors import CaseError
+from ..grid import Grid
+from ..parameters import PROFILES, Orifice
 
 __all__ = [
     "source_profile",

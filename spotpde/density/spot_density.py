@@ -40,10 +40,10 @@ from typing import Callable
 import numpy as np
 
 from . import _elliptic, _marching, _spectral, _transient
-from .errors import CaseError
-from .grid import Grid
+from ..errors import CaseError
+from ..grid import Grid
 from .orifice import source_profile, validate as validate_orifice
-from .parameters import SPOT_MODES, Orifice, Spots
+from ..parameters import SPOT_MODES, Orifice, Spots
 
 __all__ = ["steady", "transient", "solve", "validate", "pad_cells"]
 

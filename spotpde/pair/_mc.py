@@ -25,7 +25,7 @@ import math
 import numpy as np
 from numba import njit
 
-from . import _mc_kernels as K
+from ..montecarlo import _mc_kernels as K
 
 
 @njit(cache=True)
@@ -141,7 +141,7 @@ def cage_breaking_mc(kernel, b, rule=0.5, *, contact=1.0, separation=2.0, start=
     Returns:
         ndarray of falls in d, shape ``(replicas,)``.
     """
-    from .montecarlo import kernel_params
+    from ..montecarlo import kernel_params
 
     if not separation > contact > 0:
         raise ValueError(f"separation must be > contact > 0, got {separation}, {contact}")
@@ -217,7 +217,7 @@ def probe_tensor(kernel, b, rule, X, Z, *, spots=100_000, seed=0, step=0.05,
         dict ``{"xx", "xz", "zz"}`` of arrays of shape ``(len(X),)`` and the same keys
         with suffix ``"_se"``.
     """
-    from .montecarlo import kernel_params
+    from ..montecarlo import kernel_params
 
     kp = kernel_params(kernel)
     X = np.atleast_1d(np.asarray(X, float))

@@ -32,12 +32,12 @@ from typing import Callable
 import numpy as np
 import xarray as xr
 
-from ._version import __version__
+from .._version import __version__
 from .cases import Case, load_case
-from .errors import CaseError, NumericalError
-from ._roundoff import clip_roundoff
+from ..errors import CaseError, NumericalError
+from .._roundoff import clip_roundoff
 from .io import FrameWriter, make_dataset, write_netcdf
-from .parameters import TracerStart, in_bands
+from ..parameters import TracerStart, in_bands
 
 #: The pipeline's stages, in order, as reported to ``progress``.
 STAGES = ("spot density", "particle fields", "kinematic model", "tracer")
@@ -88,7 +88,7 @@ def run(case: Case | str, progress: Progress | None = None, *,
 def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
     grid, orifice, spots = case.grid, case.orifice, case.spots
 
-    spot_density = importlib.import_module("spotpde.spot_density")
+    spot_density = importlib.import_module("spotpde.density.spot_density")
     snap_times = case.snapshot_times()
     snapshots = None
     if snap_times is not None:
@@ -97,7 +97,7 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
                                            progress=_stage(progress, "spot density"))
     interacting = None        # spots.rho_max: space-time frames and rates (spotpde.traffic)
     if spots.rho_max is not None:
-        interacting = importlib.import_module("spotpde.traffic").solve_case(
+        interacting = importlib.import_module("spotpde.density.traffic").solve_case(
             case, progress=_stage(progress, "spot density"))
     if interacting is not None:          # the same solve as its frames rho_s_t
         rho_s = interacting.rho_s
@@ -124,7 +124,7 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
 
     stage = _stage(progress, "kinematic model") or _noop
     stage(0.0)
-    kinematic = importlib.import_module("spotpde.kinematic")
+    kinematic = importlib.import_module("spotpde.density.kinematic")
     b = float(np.mean(spots.b))
     q0 = orifice.rate_at(spots.t_end if spots.mode == "transient" else 0.0)
     v_kin = np.asarray(kinematic.speed(grid, orifice, b), dtype=float) * V1 * q0
@@ -162,7 +162,7 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
         attrs["case_file"] = str(case.source)
     ds = make_dataset(grid, out, times=times, attrs=attrs)
     if interacting is not None:
-        ds = importlib.import_module("spotpde.traffic").add_outputs(ds, case, interacting)
+        ds = importlib.import_module("spotpde.density.traffic").add_outputs(ds, case, interacting)
     if case.data.get("pair") is not None:     # cage breaking at a point (spotpde.pair)
         ds = importlib.import_module("spotpde.pair").add_to_result(case, ds)
     return ds
@@ -175,10 +175,10 @@ def particle_fields(case: Case, rho_s: np.ndarray) -> dict[str, np.ndarray]:
     ``void.particle_fields`` for ``tracer.model = "void"``.
     """
     if case.model == "void":
-        void = importlib.import_module("spotpde.void")
+        void = importlib.import_module("spotpde.fields.void")
         fields = void.particle_fields(case.grid, rho_s, case.spots, float(case.kernel.V1))
     else:
-        coefficients = importlib.import_module("spotpde.coefficients")
+        coefficients = importlib.import_module("spotpde.fields.coefficients")
         fields = coefficients.particle_fields(case.grid, rho_s, case.spots, case.kernel,
                                               rule=case.rule, walls=case.kernel_walls)
     return {name: np.asarray(a, dtype=float) for name, a in fields.items()}

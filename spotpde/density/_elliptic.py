@@ -30,7 +30,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .errors import NumericalError
+from ..errors import NumericalError
 
 DIRECT_LIMIT = {2: 400_000, 3: 40_000}   # SuperLU fill-in grows fast in 3D
 

@@ -32,9 +32,9 @@ from typing import Any, Callable
 import numpy as np
 import xarray as xr
 
-from ._version import __version__
+from .._version import __version__
 from .cases import Case, load_case
-from .errors import CaseError
+from ..errors import CaseError
 
 #: Keys that change the grid cannot be swept into one Dataset.
 FIXED_KEYS = ("domain.dims", "domain.x", "domain.z", "domain.spacing", "output.path")
@@ -275,7 +275,7 @@ def combine(case: Case, settings: Mapping[str, Sequence], results: list) -> xr.D
     Raises:
         spotpde.NumericalError: every member failed (there is nothing to combine).
     """
-    from .errors import NumericalError
+    from ..errors import NumericalError
 
     good = [r for _, r in results if isinstance(r, xr.Dataset)]
     failed = [(values, r) for values, r in results if not isinstance(r, xr.Dataset)]

@@ -14,8 +14,8 @@ import sys
 import time
 from pathlib import Path
 
-from ._version import __version__
-from .errors import CaseError, NumericalError
+from .._version import __version__
+from ..errors import CaseError, NumericalError
 
 EXIT_OK, EXIT_NUMERICAL, EXIT_INVALID, EXIT_INTERRUPTED = 0, 1, 2, 130
 
@@ -168,7 +168,7 @@ def cmd_sweep(args) -> int:
 
 def cmd_compare(args) -> int:
     """``spotpde compare CASE.toml [--rules LAM ...] [-o FIG.png]``: spot vs kinematic flow."""
-    from .comparison import main as compare_main
+    from ..analysis.comparison import main as compare_main
 
     argv = [args.case, "--rules", *map(str, args.rules)]
     return compare_main(argv + (["-o", args.output] if args.output else []))

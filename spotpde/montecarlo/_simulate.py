@@ -45,10 +45,10 @@ import numpy as np
 import xarray as xr
 
 from . import _mc_kernels as K
-from ._version import __version__
-from .errors import CaseError
-from .grid import Grid
-from .parameters import Orifice, Spots, in_bands
+from .._version import __version__
+from ..errors import CaseError
+from ..grid import Grid
+from ..parameters import Orifice, Spots, in_bands
 
 STEPS = ("gaussian", "binary")
 
@@ -432,7 +432,7 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
     fp[K.F_DT] = dt
     phi_tab = np.zeros(0)
     if walls == "renormalise" and grid.walls == "reflecting":
-        from ._walls import coverage_table
+        from ..fields._walls import coverage_table
 
         name = {c: n for n, c in _SHAPE_CODES.items()}[kp.shape]
         fp[K.F_TAB_X0], fp[K.F_TAB_DX], phi_tab = coverage_table(

@@ -22,7 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ._elliptic import assemble, factorize
-from .errors import NumericalError
+from ..errors import NumericalError
 
 
 def integrate(shape, h, v, D_perp, D_par, q: Callable[[float], np.ndarray], t_end: float,

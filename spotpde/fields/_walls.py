@@ -42,7 +42,7 @@ import numpy as np
 import scipy.integrate
 import scipy.signal
 
-from .grid import Grid
+from ..grid import Grid
 
 __all__ = ["WALL_TREATMENTS", "check_walls", "renormalises", "coverage", "face_value",
            "renormalised_fields", "cutoff_marginal", "coverage_table"]

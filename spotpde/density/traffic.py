@@ -38,9 +38,9 @@ import numpy as np
 
 from . import _traffic
 from ._traffic import FLUXES, LIMITERS, FluxShape, flux_from_name
-from .grid import Grid
+from ..grid import Grid
 from .orifice import source_profile, validate as validate_orifice
-from .parameters import Orifice, Spots
+from ..parameters import Orifice, Spots
 
 __all__ = ["FLUXES", "FluxShape", "flux_from_name", "transient", "free_volume",
            "riemann", "viscous_shock", "n_wave", "solve_case", "add_outputs",
@@ -119,7 +119,7 @@ def free_volume(grid: Grid, rho_s: np.ndarray, kernel) -> np.ndarray:
         rho_s: spot density (spots per d**dims), grid shape or frames.
         kernel: a :mod:`spotpde.kernels` kernel (``w`` dimensionless).
     """
-    from .convolution import convolve
+    from ..fields.convolution import convolve
 
     rho = np.asarray(rho_s, dtype=float)
     if rho.shape != grid.shape and rho.shape[1:] != grid.shape:

@@ -33,8 +33,9 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from scipy.optimize import OptimizeWarning, curve_fit
 
-from . import coefficients, kinematic, spot_density
-from .grid import Grid
+from ..fields import coefficients
+from ..density import kinematic, spot_density
+from ..grid import Grid
 
 __all__ = ["KinematicComparison", "compare_with_kinematic", "compare_rules", "gaussian_width2",
            "plot_comparison"]
@@ -354,8 +355,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     import argparse
     import sys
 
-    from .cases import load_case
-    from .errors import CaseError
+    from ..app.cases import load_case
+    from ..errors import CaseError
 
     parser = argparse.ArgumentParser(prog="python -m spotpde.comparison",
                                      description="Spot-model mean flow against the Kinematic Model.")

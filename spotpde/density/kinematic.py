@@ -21,9 +21,9 @@ import numpy as np
 from numba import njit
 from scipy.integrate import solve_ivp
 
-from .errors import CaseError
-from .grid import Grid
-from .parameters import Orifice, Spots
+from ..errors import CaseError
+from ..grid import Grid
+from ..parameters import Orifice, Spots
 from . import spot_density
 
 __all__ = ["point_source", "speed", "velocity", "streamlines"]

@@ -23,7 +23,7 @@ import numpy as np
 import pde
 
 from ._elliptic import assemble
-from .grid import Grid
+from ..grid import Grid
 
 
 class SpotDensityPDE(pde.PDEBase):

@@ -111,7 +111,7 @@ def relative_tensor(kernel, b, rule=0.5, b_par=0.0, diffusivity="passage", X=0.0
         return mean_field_tensor(kernel, b, b_par, X, Z, b_p=b_p)
     _check_kernel_2d(kernel)
     try:
-        from . import _passage  # noqa: PLC0415  (the diffusion-beyond-mean-field module)
+        from ..fields import _passage  # noqa: PLC0415  (the diffusion-beyond-mean-field module)
     except ImportError as err:
         raise ImportError('diffusivity="passage" needs spotpde._passage, which this '
                           'installation lacks; use diffusivity="mean-field"') from err
@@ -391,7 +391,7 @@ def solve(tensor, contact=1.0, separation=2.0, start=None, *, spacing=None, fram
     T = lu_T.solve(np.ones(n))
     mean = float(p0 @ T)
     if not np.isfinite(mean) or mean <= 0:
-        from .errors import NumericalError
+        from ..errors import NumericalError
         raise NumericalError("the pair never leaves the cage: B vanishes on the way out")
     dt = (mean if fall_end is None else min(mean, float(fall_end))) / steps_per_mean
     A = (sp.identity(n, format="csc") - dt * Q.T.tocsc()).tocsc()
@@ -567,6 +567,3 @@ def _dataset(res, Bg, outside, attrs, prefix="", dims=2):
     ds.attrs.update({f"{p}{k}": v for k, v in attrs.items()} if p else attrs)
     return ds
 
-
-# A case's [pair] table: spotpde/_pair_case.py
-from ._pair_case import add_to_result, local_lengths  # noqa: E402

@@ -39,8 +39,8 @@ import numba
 import numpy as np
 from scipy.linalg import solve_banded
 
-from .grid import Grid, derivative
-from .parameters import Spots
+from ..grid import Grid, derivative
+from ..parameters import Spots
 
 #: Staggered ("triangular-like") lattice: a void steps up one row and left or right by
 #: one site with probability 1/2 each. Step variance 1 site**2 per row: ``b = 1/2``

@@ -46,8 +46,8 @@ import scipy.sparse.linalg as spla
 
 from . import _advection, _diffusion, _timestepping
 from . import _fp_kernels as K
-from .errors import CaseError, NumericalError
-from .grid import DIFFUSIVITY_KEYS, DRIFT_KEYS, Grid
+from ..errors import CaseError, NumericalError
+from ..grid import DIFFUSIVITY_KEYS, DRIFT_KEYS, Grid
 
 Fields = Union[Mapping[str, np.ndarray], Callable[[float], Mapping[str, np.ndarray]]]
 

@@ -26,9 +26,9 @@ from typing import Any
 
 import numpy as np
 
-from .errors import CaseError
-from .grid import WALLS, Grid
-from .parameters import PROFILES, SPOT_MODES, TRACER_MODELS, Orifice, Spots, Tracer, TracerStart
+from ..errors import CaseError
+from ..grid import WALLS, Grid
+from ..parameters import PROFILES, SPOT_MODES, TRACER_MODELS, Orifice, Spots, Tracer, TracerStart
 
 KERNEL_SHAPES = ("uniform", "gaussian", "exponential")
 #: Wall treatments of the influence kernel (``spotpde._walls.WALL_TREATMENTS``).
@@ -103,11 +103,11 @@ class Case:
                          spacing=d["spacing"], walls=d["walls"])
         rate = o["rate"]
         if isinstance(rate, dict):
-            from .orifice import rate_from_table
+            from ..density.orifice import rate_from_table
 
             rate = rate_from_table(rate["times"], rate["values"])
         if o.get("noise") is not None:
-            from .noise import noisy_rate
+            from ..density.noise import noisy_rate
 
             rate = noisy_rate(rate, **o["noise"])
         self.orifice = Orifice(x=o["x"], width=o["width"], profile=o["profile"],
@@ -147,7 +147,7 @@ class Case:
     def kernel(self):
         """The influence kernel, ``spotpde.kernels.from_spec(shape, size, volume, aspect, dims)``."""
         if self._kernel is None:
-            from . import kernels
+            from ..fields import kernels
 
             self._kernel = kernels.from_spec(**self.kernel_spec)
         return self._kernel
@@ -846,7 +846,7 @@ def _ellipsoid_measure(radius: float, aspect: float, dims: int) -> float:
 def _check_kernel(case: Case) -> None:
     """Build the kernel and the orifice profile once, so that the solvers' own checks
     run at load time (cheap: the kernel's parameters and one floor-sized array)."""
-    from . import orifice
+    from ..density import orifice
 
     try:
         case.kernel

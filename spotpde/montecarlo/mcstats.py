@@ -36,7 +36,7 @@ from typing import Callable, Iterable, Mapping, Sequence
 import numpy as np
 from scipy import stats
 
-from .grid import Grid
+from ..grid import Grid
 
 __all__ = ["replicas", "replica_mean", "t_limit", "zscore_spread", "se_calibration", "discard",
            "positions_at", "particle_density", "drained_fraction", "continuum_drainage"]
@@ -288,7 +288,7 @@ def continuum_drainage(grid: Grid, fields: Mapping[str, np.ndarray], P0: np.ndar
     ``D_zz``) from ``P0`` (:func:`particle_density`, or ``pipeline.initial_density``);
     returns ``outflow(t) / integral(P0)``.
     """
-    from . import tracer
+    from .. import tracer
 
     P0 = np.asarray(P0, dtype=float)
     mass = float(P0.sum() * grid.cell_volume)

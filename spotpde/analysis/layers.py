@@ -188,7 +188,7 @@ def predicted_variance(ds: xr.Dataset, *, x_max: float = X_MAX,
 
 def refined(case, factor: int = 2):
     """The same case on a grid ``factor`` times finer (``domain.spacing / factor``)."""
-    from .cases import load_case
+    from ..app.cases import load_case
 
     case = _as_case(case)
     data = copy.deepcopy(case.data)
@@ -198,7 +198,7 @@ def refined(case, factor: int = 2):
 
 def with_limiter(case, limiter: str):
     """The same case with another ``tracer.limiter``."""
-    from .cases import load_case
+    from ..app.cases import load_case
 
     case = _as_case(case)
     data = copy.deepcopy(case.data)
@@ -207,7 +207,7 @@ def with_limiter(case, limiter: str):
 
 
 def _as_case(case):
-    from .cases import Case, load_case
+    from ..app.cases import Case, load_case
 
     return case if isinstance(case, Case) else load_case(case)
 
@@ -235,7 +235,8 @@ def run_without_diffusion(case, ds: xr.Dataset | None = None) -> tuple[xr.Datase
         ``(ds, P_num)``: the physical result and the ``D_p = 0`` frames (DataArray on
         ``(t, z, x)``, same coordinates as ``ds.P``).
     """
-    from . import pipeline, tracer
+    from ..app import pipeline
+    from .. import tracer
 
     case = _as_case(case)
     if case.tracer is None or case.tracer.start.kind != "layers":

@@ -66,7 +66,7 @@ import numpy as np
 
 from numba import njit
 
-from .errors import NumericalError
+from ..errors import NumericalError
 
 LIMITERS = ("mc", "vanleer", "minmod")
 _LIMITER_CODE = {"mc": 0, "vanleer": 1, "minmod": 2}

@@ -40,9 +40,9 @@ import numpy as np
 import scipy.signal
 
 from . import _walls
-from ._roundoff import clip_roundoff
-from .grid import DIFFUSIVITY_KEYS, DRIFT_KEYS, Grid, derivative
-from .parameters import Spots
+from .._roundoff import clip_roundoff
+from ..grid import DIFFUSIVITY_KEYS, DRIFT_KEYS, Grid, derivative
+from ..parameters import Spots
 
 __all__ = [
     "particle_fields",

@@ -35,9 +35,9 @@ import os
 import numpy as np
 import scipy.fft
 
-from .grid import Grid
+from ..grid import Grid
 from .orifice import cosine_coefficients
-from .parameters import Orifice
+from ..parameters import Orifice
 
 WORKERS = os.cpu_count() or 1
 ALIAS_EXPONENT = 40.0

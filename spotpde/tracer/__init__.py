@@ -1,0 +1,15 @@
+"""Stage 3: the tracer propagator, the Fokker-Planck equation of one particle.
+
+    dP/dt + div(u_p P) = sum_ij d_i d_j (D_p^ij P)        (Ito form, full tensor)
+
+:func:`solve` steps it in time (finite volumes, WENO5-Z / MUSCL advection, positive
+tensor diffusion, SSP Runge-Kutta); :func:`numerical_diffusion` predicts the scheme's
+numerical diffusion and :func:`sde_ensemble` is the grid-free Euler-Maruyama reference.
+Schemes and their properties: docs/tracer.md.
+"""
+
+from ._solve import (DIFFUSION_MODES, TracerResult, numerical_diffusion, required_fields,
+                     sde_ensemble, solve)
+
+__all__ = ["DIFFUSION_MODES", "TracerResult", "numerical_diffusion", "required_fields",
+           "sde_ensemble", "solve"]
