@@ -1,6 +1,6 @@
 """spotpde: the continuum equations of the spot model of granular drainage.
 
-The public surface (see CONTRACT.md)::
+The public surface (docs/interface.md)::
 
     import spotpde
     case = spotpde.load_case("cases/quasi2d_layers.toml")
@@ -15,8 +15,11 @@ from __future__ import annotations
 
 import importlib
 
+from . import _cache
 from ._version import __version__
 from .errors import CaseError, NumericalError
+
+_cache.configure()   # numba's cache in a per-user directory, never in the package
 
 _SUBMODULES = (
     "grid", "parameters", "kernels", "convolution", "orifice", "spot_density",
