@@ -46,7 +46,6 @@ import xarray as xr
 
 from . import _mc_kernels as K
 from ._version import __version__
-from .errors import CaseError
 from .grid import Grid
 from .parameters import Orifice, Spots, in_bands
 
@@ -104,15 +103,15 @@ def kernel_params(kernel, cutoff: float = CUTOFF) -> KernelParams:
     makes the Monte Carlo 2-4 times slower for no measurable gain).
 
     Raises:
-        CaseError: for a 3D kernel or an unknown kernel class.
+        ValueError: for a 3D kernel or an unknown kernel class.
     """
     if getattr(kernel, "dims", 2) != 2:
-        raise CaseError("domain.dims: the Monte Carlo is 2D only")
+        raise ValueError("kernel: the Monte Carlo is 2D only, got a 3D kernel")
     name = type(kernel).__name__.lower()
     if name not in _SHAPE_CODES:
         name = str(getattr(kernel, "shape_name", name)).lower()
     if name not in _SHAPE_CODES:
-        raise CaseError(f"kernel.shape: Monte Carlo supports {tuple(_SHAPE_CODES)}, got {name!r}")
+        raise ValueError(f"kernel: the Monte Carlo supports {tuple(_SHAPE_CODES)}, got {name!r}")
     code = _SHAPE_CODES[name]
     aspect = float(getattr(kernel, "aspect", 1.0))
     size = float(getattr(kernel, "a_h", None) or getattr(kernel, {"uniform": "radius",
@@ -312,7 +311,7 @@ class MCResult:
 # ---------------------------------------------------------------------------------------
 def _scalar(name, value) -> float:
     if np.ndim(value) != 0:
-        raise CaseError(f"{name}: the Monte Carlo needs a constant, got an array")
+        raise ValueError(f"{name}: the Monte Carlo needs a constant, got an array")
     return float(value)
 
 
@@ -356,16 +355,16 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
         :class:`MCResult`.
 
     Raises:
-        CaseError: invalid parameters (message names the key).
+        ValueError: invalid parameters (the message names the argument).
     """
     problems = []
     if grid.dims != 2:
-        problems.append("domain.dims: the Monte Carlo is 2D only")
+        problems.append(f"grid: the Monte Carlo is 2D only, got dims = {grid.dims}")
     v_s = _scalar("spots.drift", spots.drift)
     b = _scalar("spots.b", spots.b)
     b_par = _scalar("spots.b_par", spots.b_par)
     if callable(orifice.rate):
-        problems.append("orifice.rate: the Monte Carlo needs a constant rate")
+        problems.append("orifice.rate: the Monte Carlo needs a constant rate, got a function of time")
         Q0 = 0.0
     else:
         Q0 = float(orifice.rate)
@@ -378,15 +377,15 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
     if not Q0 > 0:
         problems.append(f"orifice.rate: must be > 0, got {Q0}")
     if not 0.0 <= gamma < 1.0:
-        problems.append(f"montecarlo.gamma: must be in [0, 1), got {gamma}")
+        problems.append(f"gamma: must be in [0, 1), got {gamma}")
     if steps not in STEPS:
-        problems.append(f"montecarlo.steps: must be one of {STEPS}, got {steps!r}")
+        problems.append(f"steps: must be one of {STEPS}, got {steps!r}")
     if not 0.0 <= rule <= 1.0:
-        problems.append(f"kernel.rule: must be in [0, 1], got {rule}")
+        problems.append(f"rule: must be in [0, 1], got {rule}")
     if (t_end is None) == (n_spots is None):
-        problems.append("montecarlo.t_end: give exactly one of t_end and n_spots")
+        problems.append(f"t_end, n_spots: give exactly one of them, got t_end={t_end!r}, n_spots={n_spots!r}")
     if problems:
-        raise CaseError(problems)
+        raise ValueError("; ".join(problems))
     kp = kernel_params(kernel, cutoff)
     if t_end is None:
         t_end = float(n_spots) / Q0
@@ -394,7 +393,7 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
         step = 0.25 * min(kp.size_v, kp.reach[1])
     step = float(step)
     if not (t_end > 0 and step > 0):
-        raise CaseError(f"montecarlo.t_end: must be > 0, got {t_end}")
+        raise ValueError(f"t_end: must be > 0 (and step > 0), got t_end={t_end}, step={step}")
     dt = step / v_s
     n_ticks = max(1, int(round(t_end / dt)))
     t_end = n_ticks * dt
@@ -446,7 +445,7 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
         tracked = np.zeros(0, np.int64)
     elif isinstance(tracked, str):
         if tracked != "all":
-            raise CaseError(f"montecarlo.tracked: 'all', None or indices, got {tracked!r}")
+            raise ValueError(f"tracked: must be 'all', None or indices, got {tracked!r}")
         tracked = np.arange(n)
     tracked = np.asarray(tracked, np.int64)
     track_slot = -np.ones(n, np.int64)
@@ -539,11 +538,11 @@ def from_case(case, *, particles="lattice", spacing: float = 1.0, **kwargs) -> M
             particles = blob(st.x, st.z, st.width, 2000, seed=kwargs.get("seed", 0))
             kwargs.setdefault("tracked", "all")
         else:
-            raise CaseError(f"montecarlo.particles: unknown {particles!r}; valid: 'lattice', "
+            raise ValueError(f"particles: unknown {particles!r}; valid: 'lattice', "
                             "'random', 'tracer', None or an (N, 2) array of positions")
     if "t_end" not in kwargs and "n_spots" not in kwargs:
         if case.tracer is None:
-            raise CaseError("tracer.t_end: give t_end or n_spots for a case without [tracer]")
+            raise ValueError("t_end: give t_end or n_spots for a case without [tracer]")
         kwargs["t_end"] = case.tracer.t_end
     kwargs.setdefault("rule", case.rule)
     if case.model == "void":

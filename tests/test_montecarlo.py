@@ -88,11 +88,11 @@ def test_measure_dataset_layout():
 def test_invalid_parameters_name_the_key():
     g = Grid(2, (-5.0, 5.0), (0.0, 10.0), 1.0)
     k = kernels.Gaussian(sigma=1.0, volume=0.05, dims=2)
-    with pytest.raises(CaseError, match="montecarlo.gamma"):
+    with pytest.raises(ValueError, match="^gamma: must be in"):
         mc.simulate(g, Orifice(), Spots(), k, gamma=1.0, t_end=1.0)
-    with pytest.raises(CaseError, match="spots.b:"):
+    with pytest.raises(ValueError, match="spots.b:"):
         mc.simulate(g, Orifice(), Spots(b=-1.0), k, t_end=1.0)
-    with pytest.raises(CaseError, match="t_end"):
+    with pytest.raises(ValueError, match="t_end"):
         mc.simulate(g, Orifice(), Spots(), k)
 
 
