@@ -80,12 +80,13 @@ def cf_units(symbols: str, long_name: str) -> dict[str, str]:
     return {"units": "1", "long_name": f"{long_name}, in {spoken}", "spotpde_units": symbols}
 
 
-def cf_attrs(case=None) -> dict[str, str]:
+def cf_attrs(case=None, *, history: bool = True) -> dict[str, str]:
     """The CF global attributes of a result: ``Conventions``, ``source``, ``references``,
     ``history`` (a line naming the time and the case file), the scales.
 
     Args:
         case: the :class:`spotpde.cases.Case` (its source file goes into ``history``).
+        history: include ``history`` (it holds the time, so two runs differ in it).
     """
     import datetime
 
@@ -93,7 +94,7 @@ def cf_attrs(case=None) -> dict[str, str]:
 
     now = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
     origin = getattr(case, "source", None)
-    return {
+    out = {
         "Conventions": CONVENTIONS,
         "source": f"spotpde {__version__}: continuum equations of the spot model",
         "references": REFERENCES,
@@ -102,6 +103,9 @@ def cf_attrs(case=None) -> dict[str, str]:
         "length_scale": LENGTH_SCALE,
         "time_scale": TIME_SCALE,
     }
+    if not history:
+        del out["history"]
+    return out
 
 
 def variable_attrs(name: str, dims: int) -> dict[str, str]:
@@ -195,7 +199,7 @@ def make_dataset(
         data_vars[name] = (dims, arr, attrs_v)
     ds = xr.Dataset(data_vars, coords=coords, attrs=dict(attrs or {}))
     ds.attrs.setdefault("units_note", UNITS_NOTE)
-    for key, value in cf_attrs().items():
+    for key, value in cf_attrs(history=False).items():
         ds.attrs.setdefault(key, value)
     return ds
 

@@ -646,7 +646,11 @@ def uniform_flow_prediction(kernel, b: float, flux: float, rule: float = 0.5,
 # Measurements
 # ---------------------------------------------------------------------------------------
 def _da(data, grid, units, long_name, **attrs):
-    return xr.DataArray(data, dims=("z", "x"), attrs={"units": units, "long_name": long_name, **attrs})
+    # CF: lengths in d and times in the case unit are pure numbers (units "1"; "d" would
+    # read as a day); the scale goes into the long name and spotpde_units
+    return xr.DataArray(data, dims=("z", "x"), attrs={
+        "units": "1", "long_name": f"{long_name}, in {units.replace('time', 'time unit')}",
+        "spotpde_units": units, **attrs})
 
 
 def measure(result: MCResult, tracer: bool = True) -> xr.Dataset:
@@ -668,8 +672,8 @@ def measure(result: MCResult, tracer: bool = True) -> xr.Dataset:
     counters and performance, ``spotpde_version``, ``source = "montecarlo"``.
     """
     g = result.grid
-    coords = {"z": ("z", g.z, {"units": "d", "long_name": "height above the orifice"}),
-              "x": ("x", g.x, {"units": "d", "long_name": "horizontal position"})}
+    coords = {"z": ("z", g.z, {"units": "1", "long_name": "height above the orifice, in particle diameters"}),
+              "x": ("x", g.x, {"units": "1", "long_name": "horizontal position, in particle diameters"})}
     ds = xr.Dataset(coords=coords)
     if result.probe is not None:
         bt = result.batch_ticks.astype(float) * result.dt  # duration of each batch
@@ -720,9 +724,9 @@ def particle_frames(result: MCResult, layer_spacing: float | None = None) -> xr.
     pos = np.concatenate([start[None], result.positions], axis=0)
     t = np.concatenate([[0.0], result.times])
     ds = xr.Dataset(
-        {"x": (("t", "particle"), pos[..., 0], {"units": "d", "long_name": "particle x (NaN: gone)"}),
-         "z": (("t", "particle"), pos[..., 1], {"units": "d", "long_name": "particle z (NaN: gone)"})},
-        coords={"t": ("t", t, {"units": "time", "long_name": "time"}),
+        {"x": (("t", "particle"), pos[..., 0], {"units": "1", "long_name": "particle x (NaN: gone), in particle diameters"}),
+         "z": (("t", "particle"), pos[..., 1], {"units": "1", "long_name": "particle z (NaN: gone), in particle diameters"})},
+        coords={"t": ("t", t, {"units": "1", "long_name": "time, in the case's time unit"}),
                 "particle": ("particle", result.tracked)})
     if layer_spacing is not None:
         ds["layer"] = ("particle", layer_mask(start[:, 1], layer_spacing),
@@ -752,10 +756,10 @@ def propagator(result: MCResult, select: np.ndarray | None = None) -> xr.DataArr
         v = v[np.isfinite(v)]
         out[k] = np.histogram(v, bins=edges)[0] / (n * g.spacing)
     return xr.DataArray(out, dims=("z", "x"),
-                        coords={"z": ("z", result.levels, {"units": "d"}), "x": ("x", g.x, {"units": "d"})},
-                        attrs={"units": "1 / d", "long_name":
+                        coords={"z": ("z", result.levels, {"units": "1", "long_name": "in particle diameters"}), "x": ("x", g.x, {"units": "1", "long_name": "in particle diameters"})},
+                        attrs={"units": "1", "spotpde_units": "1 / d", "long_name":
                                "geometrical propagator: density over x of first crossings of height z "
-                               "(Monte Carlo)", "n_particles": int(cx.shape[0])})
+                               "(Monte Carlo), per particle diameter", "n_particles": int(cx.shape[0])})
 
 
 def _windows(result: MCResult, select=None):
@@ -872,4 +876,4 @@ def velocity_correlation(result: MCResult, bins: np.ndarray, select=None, compon
         {"C": ("r", C, {"units": "1", "long_name": f"velocity correlation C_p ({component}), Monte Carlo"}),
          "C_se": ("r", se, {"units": "1", "long_name": "standard error of C"}),
          "pairs": ("r", pairs, {"units": "1", "long_name": "pair samples per bin"})},
-        coords={"r": ("r", rc, {"units": "d", "long_name": "separation"})})
+        coords={"r": ("r", rc, {"units": "1", "long_name": "separation, in particle diameters"})})
