@@ -35,7 +35,7 @@ KERNEL_SHAPES = ("uniform", "gaussian", "exponential")
 LIMITERS = ("koren", "vanleer", "mc", "minmod", "weno5", "upwind")
 DIFFUSION_MODES = ("auto", "explicit", "implicit")
 
-#: Defaults of every key, table by table (CONTRACT.md). ``None`` marks an optional key
+#: Defaults of every key, table by table (docs/interface.md). ``None`` marks an optional key
 #: without a default. The ``tracer`` table itself is optional.
 DEFAULTS: dict[str, dict[str, Any]] = {
     "domain": {"dims": 2, "x": [-30.0, 30.0], "z": [0.0, 100.0], "spacing": 0.25,

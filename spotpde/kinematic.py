@@ -1,4 +1,4 @@
-"""The Kinematic Model of silo drainage (PHYSICS.md section 4; paper eqs. law, kin).
+"""The Kinematic Model of silo drainage (docs/conventions.md section 4; paper eqs. law, kin).
 
 Downward speed ``v`` and horizontal velocity ``u_perp`` of the particles obey
 

@@ -717,7 +717,7 @@ def particle_frames(result: MCResult, layer_spacing: float | None = None) -> xr.
 
     Frame 0 is the initial state (``t = 0``), then one frame per snapshot. With
     ``layer_spacing`` a boolean ``layer`` variable marks particles that started in the
-    coloured bands ``[k s, k s + s/2)`` (the layered-silo picture, CONTRACT.md ``layers``),
+    coloured bands ``[k s, k s + s/2)`` (the layered-silo picture, docs/interface.md, ``tracer.layers``),
     so the discrete layered silo is ``plt.scatter(f.x[k], f.z[k], c=f.layer)``.
     """
     start = result.initial[result.tracked]

@@ -19,7 +19,7 @@ those at ``spots.t_end`` (the same solve when ``spots.t_end = tracer.t_end``).
 With ``run(case, path=...)`` the tracer's ``on_frame`` is an :class:`spotpde.io.FrameWriter`
 that streams every frame to the result file, so ``P`` is never held in memory whole.
 
-The Dataset has the CONTRACT.md variables and global attributes ``V1``, ``V2``, ``rule``,
+The Dataset has the public variables (docs/interface.md) and global attributes ``V1``, ``V2``, ``rule``,
 ``model``, ``spotpde_version`` and ``case`` (the validated case as TOML).
 """
 

@@ -1,4 +1,4 @@
-"""Tracer propagator: the Fokker-Planck equation of one particle (PHYSICS.md section 3).
+"""Tracer propagator: the Fokker-Planck equation of one particle (docs/conventions.md section 3).
 
 Solves, in Ito form with the full diffusion tensor,
 
