@@ -235,6 +235,20 @@ def sweep_case(
     output = Path(os.path.abspath(output if output is not None else case.output_path))
     if not output.parent.is_dir():
         raise CaseError(f"output.path: the directory {output.parent} does not exist")
+    own_client = None
+    if isinstance(scheduler, str):      # checked before anything is written or reported
+        scheduler = own_client = connect(scheduler)
+    try:
+        return _sweep(case, settings, todo_members, output, scheduler, n_workers, progress)
+    finally:
+        if own_client is not None:
+            own_client.close()
+
+
+def _sweep(case, settings, todo_members, output, scheduler, n_workers, progress):
+    """:func:`sweep_case` once the members are validated and the scheduler connected."""
+    from .io import read_netcdf, write_netcdf
+
     directory = output.with_name(output.name + ".members")
     directory.mkdir(exist_ok=True)
 
@@ -301,6 +315,41 @@ def _run_on_dask(tasks: list[tuple[str, str]], scheduler, n_workers):
             cluster.close()
 
 
+def _handshake(address: str, timeout: float) -> None:
+    """Open and close one Dask comm to ``address`` (the protocol's handshake), in a
+    thread with its own event loop, within ``timeout`` seconds.
+
+    Raises:
+        TimeoutError: no handshake within ``timeout`` (a port that accepts and is silent).
+        OSError: the connection failed or was closed.
+    """
+    import asyncio
+    import threading
+
+    from distributed.comm import connect as comm_connect
+
+    async def probe():
+        comm = await asyncio.wait_for(comm_connect(address, timeout=timeout), timeout)
+        await comm.close()
+
+    outcome: list = []
+
+    def target():
+        try:
+            asyncio.run(probe())
+            outcome.append(None)
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller
+            outcome.append(exc)
+
+    thread = threading.Thread(target=target, daemon=True)   # never delays the exit
+    thread.start()
+    thread.join(timeout + 1.0)
+    if not outcome:
+        raise TimeoutError(f"no handshake within {timeout:g} s")
+    if outcome[0] is not None:
+        raise outcome[0]
+
+
 def connect(address: str, timeout: float | None = None):
     """A ``distributed.Client`` on a running scheduler, checked first.
 
@@ -338,13 +387,18 @@ def connect(address: str, timeout: float | None = None):
         raise CaseError(f"--scheduler: cannot connect to {address} "
                         f"({exc.strerror or exc})") from None
     if banner is not None:
-        shown = banner.decode("ascii", "replace").strip()[:40]
+        shown = banner.split(b"\n")[0].decode("ascii", "replace").strip()[:40]
         raise CaseError(f"--scheduler: {address} is not a Dask scheduler (it sent "
                         f"{shown!r} before being asked)" if banner else
                         f"--scheduler: {address} closed the connection; not a Dask scheduler")
+    full = f"{scheme or 'tcp'}://{rest}"
     try:
-        return Client(f"{scheme or 'tcp'}://{rest}", timeout=timeout)
-    except (OSError, TimeoutError, ValueError, MemoryError, OverflowError) as exc:
+        _handshake(full, timeout)   # Client's own timeout does not bound the handshake
+        return Client(full, timeout=timeout)
+    except TimeoutError:
+        raise CaseError(f"--scheduler: no Dask scheduler at {address} (no answer to the "
+                        f"handshake within {timeout:g} s)") from None
+    except (OSError, ValueError, MemoryError, OverflowError) as exc:
         raise CaseError(f"--scheduler: no Dask scheduler at {address} "
                         f"({type(exc).__name__}: {str(exc)[:200]})") from None
 

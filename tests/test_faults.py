@@ -466,7 +466,7 @@ def test_kernel_wider_than_the_domain_warns(tmp_path):
     proc = cli("check", "wide.toml", cwd=tmp_path)
     assert proc.returncode == 0
     lines = proc.stderr.strip().splitlines()
-    assert lines[0].startswith("spotpde: warning: kernel.size: the kernel (10 d wide")
+    assert lines[0].startswith("spotpde: warning: kernel.size: the kernel (10.0 d wide")
     assert "is valid" in lines[-1]
     with warnings.catch_warnings(record=True) as seen:
         warnings.simplefilter("always")
