@@ -65,8 +65,7 @@ _CACHE = tempfile.mkdtemp(prefix="spotpde-faults-cache-")
 def cli(*args, cwd, env=None, timeout=300, prefix=(), **popen):
     """Run ``spotpde ARGS`` in a new process (after ``prefix``, e.g. ``setpriv ...``);
     returns the CompletedProcess (text)."""
-    full = dict(os.environ, PYTHONPATH=str(ROOT), MPLBACKEND="Agg",
-                NUMBA_CACHE_DIR=os.path.join(_CACHE, "numba"), SPOTPDE_CACHE_DIR=_CACHE)
+    full = dict(os.environ, PYTHONPATH=str(ROOT), MPLBACKEND="Agg", SPOTPDE_CACHE_DIR=_CACHE)
     full.update(env or {})
     return subprocess.run([*prefix, sys.executable, "-m", "spotpde.cli", *map(str, args)],
                           cwd=cwd,
@@ -248,7 +247,8 @@ def _limit_file_size(limit):
 def test_disk_full_exits_1_with_one_line_and_leaves_nothing(tmp_path):
     (tmp_path / "big.toml").write_text(BIG)
     # warm the cache without a limit (numba's cache files are larger than the limit)
-    assert cli("check", "big.toml", cwd=tmp_path).returncode == 0
+    assert cli("run", "big.toml", "-q", "-o", "warm.nc", cwd=tmp_path).returncode == 0
+    os.unlink(tmp_path / "warm.nc")
     proc = cli("run", "big.toml", "-q", "-o", "big.nc", cwd=tmp_path,
                preexec_fn=_limit_file_size(64 * 1024))
     assert proc.returncode == 1, proc.stderr
@@ -282,8 +282,7 @@ def test_frame_writer_removes_its_file_when_the_disk_fills(tmp_path):
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
 def test_sigterm_and_sighup_behave_like_ctrl_c(tmp_path, sig):
     (tmp_path / "long.toml").write_text(LONG)
-    env = dict(os.environ, PYTHONPATH=str(ROOT), NUMBA_CACHE_DIR=os.path.join(_CACHE, "numba"),
-               SPOTPDE_CACHE_DIR=_CACHE)
+    env = dict(os.environ, PYTHONPATH=str(ROOT), SPOTPDE_CACHE_DIR=_CACHE)
     proc = subprocess.Popen([sys.executable, "-m", "spotpde.cli", "run", "long.toml", "-q"],
                             cwd=tmp_path, env=env, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 240
@@ -388,8 +387,7 @@ def test_sweep_recomputes_a_truncated_member_and_ctrl_c_is_quiet(result_dir, tmp
     assert redone["rho_s"].dims[:1] == ("spots_b",)
     # Ctrl-C (SIGINT to the whole process group, as a terminal sends it) during a sweep
     (tmp_path / "long.toml").write_text(LONG)
-    env = dict(os.environ, PYTHONPATH=str(ROOT), NUMBA_CACHE_DIR=os.path.join(_CACHE, "numba"),
-               SPOTPDE_CACHE_DIR=_CACHE)
+    env = dict(os.environ, PYTHONPATH=str(ROOT), SPOTPDE_CACHE_DIR=_CACHE)
     proc = subprocess.Popen([sys.executable, "-m", "spotpde.cli", "sweep", "long.toml", "--set",
                              "spots.b=1,2", "-o", "l.nc", "--workers", "1"], cwd=tmp_path,
                             env=env, stderr=subprocess.PIPE, text=True, start_new_session=True)
