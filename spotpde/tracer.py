@@ -551,7 +551,7 @@ def numerical_diffusion(speed: float, D: float, spacing: float, *, sigma: float 
         (relative error of the mean displacement).
     """
     if not (speed > 0 and D >= 0 and spacing > 0 and sigma > 0):
-        raise CaseError(f"numerical_diffusion: need speed > 0, D >= 0, spacing > 0, sigma > 0; "
+        raise ValueError(f"speed, D, spacing, sigma: need speed > 0, D >= 0, spacing > 0, sigma > 0; "
                         f"got speed={speed!r}, D={D!r}, spacing={spacing!r}, sigma={sigma!r}")
     if t_end is None:
         t_end = 40.0 * sigma / speed
@@ -646,10 +646,10 @@ def sde_ensemble(grid: Grid, fields: Fields, starts, t_end: float, n: int, dt: f
     dims = grid.dims
     starts = np.atleast_2d(np.asarray(starts, dtype=float))
     if starts.shape[1] != dims:
-        raise CaseError(f"sde_ensemble.starts: need {dims} columns (array order "
+        raise ValueError(f"starts: need {dims} columns (array order "
                         f"{grid.axes}), got shape {starts.shape}")
     if not (n >= 1 and dt > 0 and t_end >= 0):
-        raise CaseError(f"sde_ensemble: need n >= 1, dt > 0, t_end >= 0; got n={n!r}, "
+        raise ValueError(f"n, dt, t_end: need n >= 1, dt > 0, t_end >= 0; got n={n!r}, "
                         f"dt={dt!r}, t_end={t_end!r}")
     rng = np.random.default_rng(seed)
     pos = starts[np.arange(n) % len(starts)].copy()

@@ -14,7 +14,6 @@ import pytest
 
 from spotpde import coefficients, kernels, spot_density, void
 from spotpde import montecarlo as mc
-from spotpde.errors import CaseError
 from spotpde.grid import Grid
 from spotpde.parameters import Orifice, Spots
 
@@ -85,7 +84,7 @@ def test_measure_dataset_layout():
     assert np.all(np.isfinite(ds.u_z.values)) and float(ds.u_z.min()) < 0
 
 
-def test_invalid_parameters_name_the_key():
+def test_invalid_parameters_name_the_argument():
     g = Grid(2, (-5.0, 5.0), (0.0, 10.0), 1.0)
     k = kernels.Gaussian(sigma=1.0, volume=0.05, dims=2)
     with pytest.raises(ValueError, match="^gamma: must be in"):
