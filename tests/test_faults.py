@@ -93,6 +93,18 @@ def result_dir(tmp_path_factory):
     return d
 
 
+def test_result_file_carries_cf_metadata(result_dir):
+    """CF-1.10: units "1" (not UDUNITS' day "d"), axes, history naming the case file."""
+    ds = sio.read_netcdf(result_dir / "r.nc")
+    assert ds.attrs["Conventions"] == "CF-1.10"
+    assert "c.toml" in ds.attrs["history"] and ds.attrs["source"].startswith("spotpde")
+    assert "Bazant" in ds.attrs["references"]
+    assert ds.z.attrs["positive"] == "up" and ds.z.attrs["axis"] == "Z"
+    assert {ds[v].attrs["units"] for v in list(ds.data_vars) + list(ds.coords)} == {"1"}
+    assert ds.u_z.attrs["spotpde_units"] == "d t-1"
+    assert ds.u_z.attrs["long_name"].endswith("in d per time unit")
+
+
 # -- outputs that are inputs or other outputs ---------------------------------------------
 
 @pytest.mark.parametrize("args, victim, key", [

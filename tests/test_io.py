@@ -45,7 +45,7 @@ def test_every_variable_and_coordinate_has_units_and_long_name(dims):
     assert ds.z.attrs["axis"] == "Z" and ds.z.attrs["positive"] == "up"
     assert ds.x.attrs["axis"] == "X" and ds.t.attrs["axis"] == "T"
     assert ds.attrs["Conventions"] == "CF-1.10"
-    for key in ("history", "source", "references", "length_scale", "time_scale"):
+    for key in ("source", "references", "length_scale", "time_scale"):   # history: a run's
         assert ds.attrs[key], key
     np.testing.assert_array_equal(ds.x, grid.x)
     np.testing.assert_array_equal(ds.z, grid.z)
