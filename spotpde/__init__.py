@@ -32,8 +32,11 @@ import importlib.abc
 import importlib.util
 import sys
 
+from . import _cache
 from ._version import __version__
 from .errors import CaseError, NumericalError
+
+_cache.configure()   # numba's cache in a per-user directory, never in the package
 
 #: Short public names of modules that live in a stage subpackage.
 _ALIASES = {

@@ -25,3 +25,9 @@ class CaseError(ValueError):
 
 class NumericalError(RuntimeError):
     """A solver stopped because its result would be wrong (NaN, P < 0, mass lost)."""
+
+
+class WriteError(OSError):
+    """A result could not be written (disk full, file-size limit, I/O error); the
+    temporary file of the atomic write has been removed and an existing target left
+    untouched. The command line prints it and exits with status 1."""

@@ -3,7 +3,7 @@
 Array order follows the result Dataset: ``(z, x)`` in 2D and ``(z, y, x)`` in 3D, so
 ``field[k, i]`` is the cell centred at ``(x[i], z[k])``. Cell ``k`` spans
 ``[z0 + k h, z0 + (k + 1) h)``; the orifice lies on the bottom face ``z = z0``.
-In 3D the ``y`` extent equals the ``x`` extent (CONTRACT.md).
+In 3D the ``y`` extent equals the ``x`` extent (docs/interface.md).
 
 py-pde orders axes the other way (``x`` first); :meth:`Grid.to_pde` builds the matching
 ``pde.CartesianGrid`` and :meth:`Grid.to_pde_data` / :meth:`Grid.from_pde_data`
@@ -19,7 +19,7 @@ import numpy as np
 
 WALLS = ("reflecting", "open")
 
-#: Particle drift components by dimension, in the result-variable names of CONTRACT.md.
+#: Particle drift components by dimension, in the result-variable names of docs/interface.md.
 DRIFT_KEYS = {2: ("u_x", "u_z"), 3: ("u_x", "u_y", "u_z")}
 #: Independent components of a symmetric diffusivity tensor by dimension.
 DIFFUSIVITY_KEYS = {

@@ -8,6 +8,9 @@ and matplotlib draws off-screen.
 import os
 import tempfile
 
+import spotpde  # noqa: F401 - sets NUMBA_CACHE_DIR to the persistent user cache first, so
+#                 the per-session SPOTPDE_CACHE_DIR below does not force recompilation
+
 os.environ.setdefault("SPOTPDE_FFTW_PLANNER", "FFTW_ESTIMATE")
 os.environ.setdefault("SPOTPDE_CACHE_DIR", tempfile.mkdtemp(prefix="spotpde-test-cache-"))
 os.environ.setdefault("MPLBACKEND", "Agg")

@@ -20,7 +20,7 @@ from spotpde.app.cases import DEFAULTS, dump_toml, load_case
 ROOT = Path(__file__).resolve().parents[1]
 CASE_FILES = sorted((ROOT / "cases").glob("*.toml"))
 
-CONTRACT_TOML = """
+INTERFACE_TOML = """
 [domain]
 dims = 2
 x = [-30.0, 30.0]
@@ -88,7 +88,7 @@ def problems_of(data) -> list[str]:
 
 def test_contract_example_loads_with_its_values(tmp_path):
     path = tmp_path / "c.toml"
-    path.write_text(CONTRACT_TOML)
+    path.write_text(INTERFACE_TOML)
     case = load_case(path)
     assert case.grid.shape == (400, 240)
     assert case.grid.walls == "reflecting"

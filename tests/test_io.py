@@ -36,7 +36,17 @@ def test_every_variable_and_coordinate_has_units_and_long_name(dims):
     assert ds.rho_s.dims == grid.axes
     assert ds.P.dims == ("t", *grid.axes)
     assert ds.mass.dims == ("t",)
-    assert ds.rho_s.attrs["units"] == f"d-{dims}"
+    # CF: no unit string UDUNITS reads as something else ("d" is a day, "t" a tonne)
+    for name in list(ds.data_vars) + list(ds.coords):
+        assert ds[name].attrs["units"] == "1", name
+    assert ds.rho_s.attrs["spotpde_units"] == f"d-{dims}"
+    assert "per d**" in ds.rho_s.attrs["long_name"]
+    assert "particle diameters" in ds.z.attrs["long_name"]
+    assert ds.z.attrs["axis"] == "Z" and ds.z.attrs["positive"] == "up"
+    assert ds.x.attrs["axis"] == "X" and ds.t.attrs["axis"] == "T"
+    assert ds.attrs["Conventions"] == "CF-1.10"
+    for key in ("source", "references", "length_scale", "time_scale"):   # history: a run's
+        assert ds.attrs[key], key
     np.testing.assert_array_equal(ds.x, grid.x)
     np.testing.assert_array_equal(ds.z, grid.z)
     assert "units_note" in ds.attrs

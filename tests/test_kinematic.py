@@ -5,7 +5,6 @@ import pytest
 from scipy.integrate import quad
 
 from spotpde.density import kinematic
-from spotpde.errors import CaseError
 from spotpde.grid import Grid
 from spotpde.parameters import Orifice
 
@@ -41,7 +40,7 @@ def test_point_source_below_and_at_the_floor():
     v = kinematic.point_source(np.array([0.0, 1.0, 0.0, 2.0]), np.array([0.0, 0.0, -1.0, -3.0]), 1.3)
     assert v[0] == np.inf and np.all(v[1:] == 0.0)
     assert isinstance(kinematic.point_source(0.5, 2.0, 1.3), float)
-    with pytest.raises(CaseError, match="spots.b"):
+    with pytest.raises(ValueError, match="^b: must be > 0"):
         kinematic.point_source(0.5, 2.0, -1.0)
 
 

@@ -58,7 +58,7 @@ def test_point_open_walls_equals_free_space(dims):
     for c in mesh[1:]:
         exact = exact * gauss_avg(c, 2 * 1.1 * mesh[0], g.spacing)
     np.testing.assert_allclose(rho, exact, rtol=0, atol=1e-13 * exact.max())
-    # point values (the CONTRACT closed form) differ from cell averages by O(h^2)
+    # point values (the public closed form, kinematic.point_source) differ from cell averages by O(h^2)
     r = np.sqrt(sum(c**2 for c in mesh[1:]))
     far = np.broadcast_to(mesh[0] > 2, g.shape)
     point = point_source(r, mesh[0], 1.1, dims=dims)

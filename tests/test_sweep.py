@@ -53,23 +53,24 @@ def test_sweep_on_local_cluster_combines_resumes(tmp_path):
     ds = sweep.sweep_case(BASE, settings, out, n_workers=2,
                           progress=lambda done, total: seen.append((done, total)))
     assert seen[-1] == (6, 6)
-    assert ds["rho_s"].dims == ("kernel.size", "spots.b", "z", "x")
+    assert ds["rho_s"].dims == ("kernel_size", "spots_b", "z", "x")   # CF names: no dots
     assert (ds["status"] == 0).all()
-    np.testing.assert_array_equal(ds["spots.b"], [1.0, 2.0, 3.0])
+    np.testing.assert_array_equal(ds["spots_b"], [1.0, 2.0, 3.0])
+    assert ds["spots_b"].attrs["case_key"] == "spots.b"
     # each member equals a direct run of the same case
     direct = spotpde.run(spotpde.load_case(
         {**BASE, "kernel": {**BASE["kernel"], "size": 1.0}, "spots": {"b": 2.0}}))
-    member = ds.sel({"kernel.size": 1.0, "spots.b": 2.0})
+    member = ds.sel({"kernel_size": 1.0, "spots_b": 2.0})
     for name in ("rho_s", "u_x", "u_z", "D_xx", "v_kin"):
         np.testing.assert_allclose(member[name], direct[name], rtol=1e-12, atol=0)
     assert float(member["V2"]) == pytest.approx(direct.attrs["V2"], rel=1e-14)
     # V2 of a Gaussian scales as 1/size**2 in 2D: the swept dimension is the right one
-    v2 = ds["V2"].isel({"spots.b": 0}).values
+    v2 = ds["V2"].isel({"spots_b": 0}).values
     assert v2[0] / v2[1] == pytest.approx(4.0, rel=1e-12)
     # the written file reads back to the same Dataset
     with xr.open_dataset(out) as back:
         xr.testing.assert_allclose(back.load(), ds)
-        assert back["rho_s"].attrs["units"] and back["kernel.size"].attrs["units"] == "d"
+        assert back["rho_s"].attrs["units"] and back["kernel_size"].attrs["spotpde_units"] == "d"
     # resuming reruns nothing: member files are reused, untouched
     members_dir = tmp_path / "sweep.nc.members"
     stamps = {p: p.stat().st_mtime_ns for p in members_dir.iterdir()}
@@ -96,8 +97,8 @@ def test_failed_member_is_reported_by_its_parameters(tmp_path, monkeypatch):
         ds = sweep.sweep_case(BASE, {"spots.b": [1.0, 2.0]}, tmp_path / "s.nc",
                               scheduler=client)
     assert ds["status"].values.tolist() == [0, 1]
-    assert np.isnan(ds["rho_s"].sel({"spots.b": 2.0})).all()
-    assert np.isfinite(ds["rho_s"].sel({"spots.b": 1.0})).all()
+    assert np.isnan(ds["rho_s"].sel({"spots_b": 2.0})).all()
+    assert np.isfinite(ds["rho_s"].sel({"spots_b": 1.0})).all()
     assert ds.attrs["failed_members"] == "spots.b=2.0: NumericalError: P < 0 at t = 1.5"
     # the failed member left no file, so a later run retries it
     assert len(os.listdir(tmp_path / "s.nc.members")) == 1
@@ -110,7 +111,7 @@ def test_cli_sweep_and_bad_set(tmp_path, capsys):
     assert main(["sweep", str(case), "--set", "kernel.size=0.5,1", "-o", str(out),
                  "--workers", "1", "-q"]) == 0
     with xr.open_dataset(out) as ds:
-        assert ds.sizes["kernel.size"] == 2
+        assert ds.sizes["kernel_size"] == 2
     assert main(["sweep", str(case), "--set", "kernel.rule=0.5,7", "-o",
                  str(tmp_path / "bad.nc")]) == 2
     err = capsys.readouterr().err

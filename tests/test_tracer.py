@@ -317,9 +317,9 @@ def test_result_shapes_progress_and_errors():
     del bad["D_xz"]
     with pytest.raises(CaseError, match="D_xz"):
         tracer.solve(grid, bad, P0, 1.0, 2)
-    with pytest.raises(CaseError, match="koren"):
+    with pytest.raises(ValueError, match="koren"):
         tracer.solve(grid, fields, P0, 1.0, 2, limiter="superbee2")
-    with pytest.raises(CaseError, match="tracer.frames"):
+    with pytest.raises(ValueError, match="^frames: must be an integer"):
         tracer.solve(grid, fields, P0, 1.0, 1)
     with pytest.raises(CaseError, match="positive semidefinite"):
         tracer.solve(grid, dict(fields, D_xz=0.02), P0, 1.0, 2)

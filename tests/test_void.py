@@ -276,7 +276,7 @@ def test_void_fields_variable_coefficients_and_3d():
 
 
 def test_void_density_is_the_kinematic_point_source():
-    """Eq. rhov for voids and the kinematic speed share one closed form (PHYSICS.md s.4)."""
+    """Eq. rhov for voids and the kinematic speed share one closed form (docs/conventions.md section 4)."""
     x = np.linspace(-8, 8, 33)
     for z in (0.5, 3.0, 20.0):
         np.testing.assert_allclose(void.point_void_density(x, z, 1.3),

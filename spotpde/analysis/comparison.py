@@ -1,7 +1,7 @@
 """The spot model's mean particle flow against the Kinematic Model, height by height.
 
 The mean (Eulerian) particle velocity a kinematic model describes is the flux velocity
-``u_f = u_p - div D_p`` (PHYSICS.md section 3; :func:`spotpde.coefficients.flux_velocity`).
+``u_f = u_p - div D_p`` (docs/conventions.md section 3; :func:`spotpde.coefficients.flux_velocity`).
 The Kinematic Model with the same ``b`` and orifice, carrying the flux ``V1 Q0``, is
 ``v_kin`` (downward speed, ``dv/dz = b lap_perp v``) with ``u_perp = b grad_perp v_kin``.
 

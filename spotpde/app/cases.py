@@ -37,7 +37,7 @@ KERNEL_WALLS = ("renormalise", "truncate")
 LIMITERS = ("koren", "vanleer", "mc", "minmod", "weno5", "upwind")
 DIFFUSION_MODES = ("auto", "explicit", "implicit")
 
-#: Defaults of every key, table by table (CONTRACT.md). ``None`` marks an optional key
+#: Defaults of every key, table by table (docs/interface.md). ``None`` marks an optional key
 #: without a default. The ``tracer`` table itself is optional.
 DEFAULTS: dict[str, dict[str, Any]] = {
     "domain": {"dims": 2, "x": [-30.0, 30.0], "z": [0.0, 100.0], "spacing": 0.25,
@@ -73,8 +73,10 @@ MAX_FRAMES = 10_000
 MEMORY_FRACTION = 0.6
 #: Memory of the interpreter and libraries of a run (numpy, numba, xarray, matplotlib).
 BASELINE_BYTES = 512 * 1024**2
-#: Horizontal reach of a kernel in units of its ``size`` (a bound on the stencil).
-_REACH = {"uniform": 1.0, "gaussian": 5.0, "exponential": 12.0}
+#: Horizontal reach of a kernel in units of its ``size``, used only if the kernel cannot
+#: be built (the estimate otherwise asks the kernel class: ``kernel_halfwidths``); the
+#: smooth kernels are cut where ``w = 1e-14 w(0)``.
+_REACH = {"uniform": 1.0, "gaussian": 8.0, "exponential": 32.3}
 
 
 class Case:
@@ -226,7 +228,7 @@ def load_case(source: str | os.PathLike | Mapping, *, frames_in_memory: bool = T
         except OSError as exc:
             raise CaseError(f"{path}: cannot read the case file ({exc.strerror or exc})") from None
         try:
-            text = blob.decode("utf-8")
+            text = blob.decode("utf-8-sig")   # a byte-order mark (some editors) is fine
             raw = tomllib.loads(text)
         except UnicodeDecodeError:
             raise CaseError(f"{path}: malformed TOML: not UTF-8 text") from None
@@ -238,6 +240,7 @@ def load_case(source: str | os.PathLike | Mapping, *, frames_in_memory: bool = T
     data = validate(raw, frames_in_memory=frames_in_memory)
     case = Case(data, text, path)
     _check_kernel(case)
+    _warn_wide_kernel(data)
     return case
 
 
@@ -255,7 +258,7 @@ def validate(raw: Mapping, *, frames_in_memory: bool = True) -> dict:
         spotpde.CaseError: listing every problem found.
     """
     v = _Validator()
-    data = v.tables(raw)
+    data = v.tables(_plain(raw))
     if not v.problems:
         v.cross(data)
     if not v.problems:
@@ -265,14 +268,39 @@ def validate(raw: Mapping, *, frames_in_memory: bool = True) -> dict:
     return data
 
 
+def _plain(value: Any) -> Any:
+    """A case mapping from Python code with plain TOML types: numpy scalars become
+    ``int``/``float``/``bool``, numpy arrays and tuples lists, paths strings (so that
+    ``{"domain": {"dims": np.int64(2), "x": np.array([-4.0, 4.0])}}`` and
+    ``{"output": {"path": pathlib.Path("r.nc")}}`` are accepted)."""
+    if isinstance(value, Mapping):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, np.ndarray):
+        return _plain(value.tolist())
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    return value
+
+
 # -- helpers used by the pipeline ----------------------------------------------------
 
 def available_memory() -> int:
-    """Bytes of memory available to a new run (``MemAvailable``, else free pages).
+    """Bytes of memory available to a new run (:func:`psutil.virtual_memory`
+    ``available``; else ``MemAvailable`` of ``/proc/meminfo``, else free pages).
 
     Returns:
         Available memory in bytes (4 GiB if the system does not say).
     """
+    try:
+        import psutil
+
+        return int(psutil.virtual_memory().available)
+    except Exception:  # noqa: BLE001 - psutil missing or unsupported platform
+        pass
     try:
         with open("/proc/meminfo") as fh:
             for line in fh:
@@ -316,18 +344,49 @@ def estimate_bytes(data: Mapping, frames_in_memory: bool = True) -> int:
     Returns:
         Estimated peak bytes (a float-safe int).
     """
+    return _estimate(data, frames_in_memory)
+
+
+def kernel_halfwidths(data: Mapping) -> tuple[int, int]:
+    """Half-widths ``(vertical, horizontal)`` in cells of the sampled kernel stencil of a
+    validated case, from the kernel class's own reach (``Kernel.halfwidths``); the
+    stencil has ``2 m + 1`` cells along each axis (e.g. 65 for a Gaussian of sigma 1 at
+    h = 0.25, 259 for an exponential kernel of decay length 1).
+    """
+    from ..fields import kernels
+
+    d, k = data["domain"], data["kernel"]
+    volume = (k["height"] * _ellipsoid_measure(k["size"], k["aspect"], d["dims"])
+              if "height" in k else k["volume"])
+    kern = kernels.from_spec(k["shape"], k["size"], volume, k["aspect"], d["dims"])
+    m = kern.halfwidths(d["spacing"])
+    return m[0], m[-1]
+
+
+def _estimate(data: Mapping, frames_in_memory: bool = True, *, pad: bool = True,
+              stencil: bool = True, frames: bool = True) -> int:
+    """:func:`estimate_bytes`; ``pad``/``stencil``/``frames`` False leave out the open-wall
+    padding, the kernel stencil (a 1-cell stencil) or the tracer frames (one frame), to
+    find which key makes a case too large."""
     d, k = data["domain"], data["kernel"]
     dims, h = d["dims"], d["spacing"]
     nx = (d["x"][1] - d["x"][0]) / h
     nz = (d["z"][1] - d["z"][0]) / h
-    if d["walls"] == "open":   # the spot density is solved on a padded, wider grid
+    if d["walls"] == "open" and pad:   # the spot density is solved on a padded, wider grid
         b = data["spots"]["b"]
         b = max(b["values"]) if isinstance(b, Mapping) else b
         nx += 2 * math.ceil(6.0 * math.sqrt(b * (d["z"][1] - d["z"][0])) / h)
     cells = nz * nx ** (dims - 1)
-    reach_h = _REACH[k["shape"]] * k["size"]
-    reach_v = reach_h / k["aspect"]
-    sx, sz = 2 * math.ceil(reach_h / h) + 1, 2 * math.ceil(reach_v / h) + 1
+    if not stencil:
+        sx = sz = 1
+    else:
+        try:
+            mz, mh = kernel_halfwidths(data)
+            sx, sz = 2 * mh + 1, 2 * mz + 1
+        except (ValueError, ArithmeticError):   # refused later, by _check_kernel
+            reach_h = _REACH[k["shape"]] * k["size"]
+            sx = 2 * math.ceil(reach_h / h) + 1
+            sz = 2 * math.ceil(reach_h / k["aspect"] / h) + 1
     stencil = sz * sx ** (dims - 1)
     padded = (nz + sz) * (nx + sx) ** (dims - 1)
     n_fields = 1 + 1 + (5 if dims == 2 else 9)     # rho_s, v_kin, u_*, D_**
@@ -336,7 +395,7 @@ def estimate_bytes(data: Mapping, frames_in_memory: bool = True) -> int:
     n_tracer = 0
     if tracer is not None:
         # frames (one in flight when streamed), P_height, scheme fluxes and stages
-        n_tracer = (tracer["frames"] if frames_in_memory else 1) + 1 + 16
+        n_tracer = (tracer["frames"] if frames_in_memory and frames else 1) + 1 + 16
         if data["spots"]["mode"] == "transient":
             # spot-density snapshots (one more in flight), the fields of three of them,
             # and the tracer's cache of operators (face velocities, diffusion splitting,
@@ -768,6 +827,14 @@ class _Validator:
             self.bad("spots.t_end", 'is only used when spots.mode = "transient"; '
                      'set it to 0 or remove it', s["t_end"])
         # kernel
+        if k["shape"] == "uniform" and "volume" in k:
+            w = k["volume"] / _ellipsoid_measure(k["size"], k["aspect"], dims)
+            if w > 1.001:   # w = 1 (the void model's spot), volume rounded to 4 digits, is fine
+                self.bad("kernel.volume", f'with shape = "uniform" and kernel.size = '
+                         f'{_show(k["size"])} implies the influence w = volume / spot '
+                         f"{'area' if dims == 2 else 'volume'} = {w:.3g} > 1 (a spot moves "
+                         "each particle by at most its own step); use a smaller volume or "
+                         "a larger size", k["volume"])
         if "height" in k:
             if k["shape"] != "uniform":
                 self.bad("kernel.height", 'is only for shape = "uniform" (the influence w '
@@ -824,11 +891,36 @@ class _Validator:
             nz = (d["z"][1] - d["z"][0]) / d["spacing"]
             cells = " x ".join(f"{n:,.0f}" for n in ([nz] + [nx] * (d["dims"] - 1)))
             snaps = data.get("tracer") is not None and data["spots"]["mode"] == "transient"
-            self.bad("domain.spacing", f"the grid of {cells} cells (with kernel stencil and "
+            limit = MEMORY_FRACTION * have - BASELINE_BYTES
+            key, value, advice = "domain.spacing", d["spacing"], (
+                "use a larger spacing, a smaller domain or fewer tracer.frames"
+                + (" or tracer.snapshots" if snaps else ""))
+            if _estimate(data, frames_in_memory, pad=False, stencil=False,
+                         frames=False) <= limit:
+                # the grid itself fits: blame what is added to it
+                k = data["kernel"]
+                if d["walls"] == "open" and _estimate(data, frames_in_memory, stencil=False,
+                                                      frames=False) > limit:
+                    key, value, advice = "spots.b", data["spots"]["b"], (
+                        'with domain.walls = "open" the spot density is solved on a grid '
+                        "widened by 6 sqrt(b H) on each side; use a smaller b or reflecting "
+                        "walls")
+                elif _estimate(data, frames_in_memory, frames=False, pad=False) > limit:
+                    mz, mh = kernel_halfwidths(data)
+                    if k["aspect"] < 1 and mz > mh:
+                        key, value = "kernel.aspect", k["aspect"]
+                    else:
+                        key, value = "kernel.size", k["size"]
+                    advice = (f"the kernel stencil of {2 * mz + 1} x {2 * mh + 1} cells "
+                              "widens every FFT array; use a smaller kernel.size, an aspect "
+                              "nearer 1 or a larger domain.spacing")
+                elif data.get("tracer") is not None and frames_in_memory:
+                    key, value = "tracer.frames", data["tracer"]["frames"]
+                    advice = ("use fewer frames, or stream them to the result file "
+                              "(spotpde run, or spotpde.run(case, path=...))")
+            self.bad(key, f"the grid of {cells} cells (with kernel stencil and "
                      f"tracer frames) needs about {_gb(need)}, more than the "
-                     f"{_gb(MEMORY_FRACTION * have)} this machine can spare; use a larger "
-                     f"spacing, a smaller domain or fewer tracer.frames"
-                     + (" or tracer.snapshots" if snaps else ""), d["spacing"])
+                     f"{_gb(MEMORY_FRACTION * have)} this machine can spare; {advice}", value)
 
 
 def _gb(n: float) -> str:
@@ -856,6 +948,21 @@ def _check_kernel(case: Case) -> None:
         lines = str(exc).splitlines() or [type(exc).__name__]
         raise CaseError([f"kernel: {line}" for line in lines]) from None
     orifice.source_profile(case.grid, case.orifice)
+
+
+def _warn_wide_kernel(data: Mapping) -> None:
+    """Warn when the kernel's size (R, sigma or decay length) spans more than the domain:
+    every spot then moves the whole silo, and the fields are mostly the walls' images."""
+    import warnings
+
+    d, k = data["domain"], data["kernel"]
+    width, height = d["x"][1] - d["x"][0], d["z"][1] - d["z"][0]
+    size_h, size_v = k["size"], k["size"] / k["aspect"]
+    if 2 * size_h > width or 2 * size_v > height:
+        warnings.warn(f"kernel.size: the kernel ({_show(2 * size_h)} d wide, "
+                      f"{_show(2 * size_v)} d tall) is wider than the domain "
+                      f"({_show(width)} x {_show(height)} d); the fields will mostly show "
+                      "the walls", UserWarning, stacklevel=3)
 
 
 def _field(value, grid: Grid):
@@ -887,7 +994,7 @@ def _tracer(t: Mapping | None, grid: Grid, orifice: Orifice) -> Tracer | None:
 # -- a tiny TOML writer for case mappings ------------------------------------------
 
 def dump_toml(data: Mapping) -> str:
-    """Write a case mapping as TOML: top-level tables of scalars, lists and inline tables.
+    """Write a case mapping as TOML (with ``tomli_w``; ``None`` values are left out).
 
     Args:
         data: ``{table: {key: value}}`` with bool, int, float, str, lists of those and
@@ -896,16 +1003,16 @@ def dump_toml(data: Mapping) -> str:
     Returns:
         TOML text that :func:`tomllib.loads` reads back to an equal mapping.
     """
-    lines: list[str] = []
-    for table, body in data.items():
-        if lines:
-            lines.append("")
-        lines.append(f"[{_toml_key(table)}]")
-        for key, value in body.items():
-            if value is None:
-                continue
-            lines.append(f"{_toml_key(key)} = {_toml_value(value)}")
-    return "\n".join(lines) + "\n"
+    import tomli_w
+
+    def drop_none(node):
+        if isinstance(node, Mapping):
+            return {k: drop_none(v) for k, v in node.items() if v is not None}
+        if isinstance(node, (list, tuple)):
+            return [drop_none(v) for v in node]
+        return node
+
+    return tomli_w.dumps(drop_none(_plain(data)))
 
 
 def _toml_key(key: str) -> str:

@@ -1,9 +1,11 @@
 """The ``spotpde`` command line: ``run``, ``check``, ``plot``, ``sweep``, ``compare``, ``--version``.
 
-Exit status (CONTRACT.md): 0 done; 2 invalid case or unreadable input (one line per
-problem on standard error, no traceback, no output file); 1 numerical failure (no
-output file); 130 interrupted by Ctrl-C (no output file, or a complete one: results
-are written to a temporary file in the target directory and then renamed).
+Exit status (docs/interface.md): 0 done; 2 invalid case, unreadable input or an output
+path that cannot or must not be written (one line per problem on standard error, no
+traceback, no output file); 1 numerical failure or a failed write (no output file); 130
+interrupted by Ctrl-C, 128 + the signal number for SIGTERM and SIGHUP (no output file, or
+a complete one: results are written to a temporary file in the target directory and
+then renamed). Output paths are checked before any computing (:mod:`spotpde._outputs`).
 """
 
 from __future__ import annotations
@@ -15,7 +17,8 @@ import time
 from pathlib import Path
 
 from .._version import __version__
-from ..errors import CaseError, NumericalError
+from ._outputs import FIGURE_FORMATS, Terminated, handle_termination, output_problem
+from ..errors import CaseError, NumericalError, WriteError
 
 EXIT_OK, EXIT_NUMERICAL, EXIT_INVALID, EXIT_INTERRUPTED = 0, 1, 2, 130
 
@@ -83,6 +86,7 @@ def cmd_check(args) -> int:
     from .cases import load_case
 
     case = load_case(args.case)
+    _check_outputs([("output.path", case.output_path, None)], inputs=[args.case])
     g = case.grid
     cells = " x ".join(str(n) for n in g.shape)
     _say(f"spotpde: {args.case} is valid ({g.dims}D, {cells} cells, model {case.model})")
@@ -98,14 +102,11 @@ def cmd_run(args) -> int:
     if args.output is not None:
         case = case.with_output(args.output)
     out = case.output_path
-    if not out.parent.is_dir():
-        raise CaseError(f"output.path: the directory {out.parent} does not exist, "
-                        f"got {str(out)!r}")
     fig = None
     if args.plot is not None:
         fig = Path(args.plot) if args.plot else out.with_suffix(".png")
-        if not fig.parent.resolve().is_dir():
-            raise CaseError(f"--plot: the directory {fig.parent} does not exist")
+    _check_outputs([("output.path", out, None), ("--plot", fig, FIGURE_FORMATS)],
+                   inputs=[args.case])
     progress = None if args.quiet else Progress()
     t0 = time.monotonic()
     try:
@@ -128,12 +129,14 @@ def cmd_plot(args) -> int:
     from . import io
     from .plotting import plot_result
 
+    fig = Path(args.output) if args.output else Path(args.result).with_suffix(".png")
+    _check_outputs([("-o", fig, FIGURE_FORMATS)], inputs=[args.result])
     try:
         ds = io.read_netcdf(args.result)
+        io.check_single_run(ds, args.result)
     except ValueError as exc:
         _say(str(exc))
         return EXIT_INVALID
-    fig = Path(args.output) if args.output else Path(args.result).with_suffix(".png")
     plot_result(ds, fig)
     _say(f"spotpde: wrote {fig}")
     return EXIT_OK
@@ -149,6 +152,8 @@ def cmd_sweep(args) -> int:
     settings = parse_settings(args.set or [])
     case = load_case(args.case)
     output = args.output if args.output is not None else case.output_path
+    _check_outputs([("output.path" if args.output is None else "-o", output, None)],
+                   inputs=[args.case])
 
     def progress(done: int, total: int) -> None:
         if not args.quiet:
@@ -170,8 +175,39 @@ def cmd_compare(args) -> int:
     """``spotpde compare CASE.toml [--rules LAM ...] [-o FIG.png]``: spot vs kinematic flow."""
     from ..analysis.comparison import main as compare_main
 
+    if args.output:
+        _check_outputs([("-o", args.output, FIGURE_FORMATS)], inputs=[args.case])
     argv = [args.case, "--rules", *map(str, args.rules)]
     return compare_main(argv + (["-o", args.output] if args.output else []))
+
+
+def _check_outputs(outputs, inputs) -> None:
+    """Refuse, before any computing, outputs that cannot or must not be written.
+
+    Args:
+        outputs: ``(key, path or None, formats or None)`` in order; each is also checked
+            against the ones before it.
+        inputs: the command's input files.
+
+    Raises:
+        spotpde.CaseError: one line per problem, naming the key (``output.path``,
+            ``--plot``, ``-o``).
+    """
+    problems, earlier = [], []
+    for key, path, formats in outputs:
+        if path is None:
+            continue
+        msg = output_problem(path, inputs=inputs, others=earlier, formats=formats)
+        if msg:
+            problems.append(f"{key}: {msg}")
+        earlier.append((f"output given by {key}", path))
+    if problems:
+        raise CaseError(problems)
+
+
+def _warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Warnings as one line on standard error (``spotpde: warning: ...``)."""
+    _say(f"spotpde: warning: {message}")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -231,6 +267,10 @@ def main(argv: list[str] | None = None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:   # --help, --version, usage errors (status 2)
         return int(exc.code or 0)
+    handle_termination()          # SIGTERM and SIGHUP: like Ctrl-C
+    import warnings
+
+    warnings.showwarning = _warning
     try:
         return args.func(args)
     except CaseError as err:
@@ -239,11 +279,16 @@ def main(argv: list[str] | None = None) -> int:
     except NumericalError as err:
         _say(f"spotpde: numerical failure, no result written: {err}")
         return EXIT_NUMERICAL
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         written = getattr(args, "written", None)
-        _say(f"spotpde: interrupted; {written} is complete" if written else
-             "spotpde: interrupted, no result written")
-        return EXIT_INTERRUPTED
+        what = (f"terminated by signal {exc.signum}" if isinstance(exc, Terminated)
+                else "interrupted")
+        _say(f"spotpde: {what}; {written} is complete" if written else
+             f"spotpde: {what}, no result written")
+        return 128 + exc.signum if isinstance(exc, Terminated) else EXIT_INTERRUPTED
+    except WriteError as err:     # disk full, file-size limit: nothing left behind
+        _say(f"spotpde: {err}")
+        return EXIT_NUMERICAL
     except OSError as err:
         _say(f"spotpde: {err.strerror or err}: {err.filename or ''}".rstrip(": "))
         return EXIT_INVALID if args.command != "run" else EXIT_NUMERICAL

@@ -1,7 +1,7 @@
 """Result Datasets and netCDF files.
 
 :func:`make_dataset` turns grid arrays into an :class:`xarray.Dataset` with the
-CONTRACT.md variable names, dims ``("z", "x")`` / ``("z", "y", "x")`` (tracer frames add
+public variable names (docs/interface.md), dims ``("z", "x")`` / ``("z", "y", "x")`` (tracer frames add
 a leading ``"t"``) and CF-style ``units`` / ``long_name`` on every variable and
 coordinate. :func:`write_netcdf` writes netCDF4 with zlib compression atomically (a
 temporary file in the same directory, then :func:`os.replace`), so an interrupted or
@@ -9,9 +9,16 @@ failed write never leaves a half-written result. :class:`FrameWriter` does the s
 run whose tracer frames are streamed to the file as the solver produces them, so memory
 does not grow with the number of frames. :func:`read_netcdf` reads a result back.
 
-Unit strings: ``d`` is the particle diameter (the length unit), ``t`` the case's time
-unit (the time in which a spot rises ``spots.drift`` diameters); they are *not* the
-UDUNITS day and tonne, which the global attribute ``units_note`` says.
+Units (CF-1.10): every length is in particle diameters d and every time in the case's
+time unit (``spots.drift`` is the spot speed in d per time unit), so every quantity is a
+pure number and carries ``units = "1"``; its ``long_name`` says the scale ("in particle
+diameters", "in d**2 per time unit"), the attribute ``spotpde_units`` gives it in
+symbols (``"d-2"``, ``"d t-1"``), and the global attributes ``length_scale`` and
+``time_scale`` define d and the time unit. Unit strings such as ``"d"`` or ``"t"`` are
+not used: UDUNITS (cf_xarray, pint-xarray, Panoply) reads them as day and tonne.
+Coordinates carry ``axis`` (``X``, ``Y``, ``Z``, ``T``) and ``z`` ``positive = "up"``.
+:func:`cf_attrs` gives the global attributes ``Conventions``, ``history``, ``source``,
+``references``, ``length_scale`` and ``time_scale``.
 """
 
 from __future__ import annotations
@@ -24,56 +31,117 @@ from typing import Mapping
 import numpy as np
 import xarray as xr
 
-UNITS_NOTE = ("lengths in particle diameters (unit 'd'); times in the case's time unit "
-              "(unit 't': a spot rises spots.drift d per t)")
+from .errors import WriteError
+
+UNITS_NOTE = ("every quantity is dimensionless (units '1'): lengths in particle diameters d, "
+              "times in the case's time unit (spots.drift is in d per time unit); "
+              "the variable attribute spotpde_units gives the scale in these symbols")
+#: Global attributes defining the scales (CF has no unit for them).
+LENGTH_SCALE = "d, the particle diameter: every length is in particle diameters"
+TIME_SCALE = ("the case's time unit: spots.drift is the spot speed v_s in d per time unit "
+              "(with spots.drift = 1 the time unit is d / v_s)")
+CONVENTIONS = "CF-1.10"
+REFERENCES = ("M. Z. Bazant, The Spot Model for random-packing dynamics, Mechanics of "
+              "Materials 38, 717-731 (2006), arXiv:cond-mat/0411040 (2004)")
 
 #: Variables every result has (with a tracer also P, P_height, mass, outflow).
 REQUIRED = ("rho_s", "v_kin", "u_x", "u_z", "D_xx", "D_xz", "D_zz")
 
 COORDS = {
-    "x": ("d", "horizontal position (cell centre)"),
-    "y": ("d", "second horizontal position (cell centre)"),
-    "z": ("d", "height above the orifice (cell centre)"),
-    "t": ("t", "time since the tracer was released"),
+    "x": ("d", "horizontal position (cell centre), in particle diameters"),
+    "y": ("d", "second horizontal position (cell centre), in particle diameters"),
+    "z": ("d", "height above the orifice (cell centre), in particle diameters"),
+    "t": ("t", "time since the tracer was released, in the case's time unit"),
 }
+#: CF axis attributes of the coordinates.
+AXES = {"x": {"axis": "X"}, "y": {"axis": "Y"}, "z": {"axis": "Z", "positive": "up"},
+        "t": {"axis": "T"}}
+#: How ``spotpde_units`` symbols are spelled in long names.
+_SPOKEN = {"d": "particle diameters", "d-1": "per particle diameter",
+           "d-2": "per d**2", "d-3": "per d**3", "d2": "d**2", "d3": "d**3",
+           "d t-1": "d per time unit", "d2 t-1": "d**2 per time unit",
+           "t": "the case's time unit", "t-1": "per time unit"}
+
+
+def cf_units(symbols: str, long_name: str) -> dict[str, str]:
+    """CF attributes of a quantity whose scale is ``symbols`` in d and the time unit.
+
+    Args:
+        symbols: e.g. ``"d"``, ``"d-2"``, ``"d t-1"``, or ``"1"`` for a pure number.
+        long_name: the description without units.
+
+    Returns:
+        ``{"units": "1", "long_name": "<long_name>, in <scale>", "spotpde_units": symbols}``
+        (a pure number keeps its long name).
+    """
+    if symbols == "1":
+        return {"units": "1", "long_name": long_name}
+    spoken = _SPOKEN.get(symbols, symbols)
+    return {"units": "1", "long_name": f"{long_name}, in {spoken}", "spotpde_units": symbols}
+
+
+def cf_attrs(case=None, *, history: bool = True) -> dict[str, str]:
+    """The CF global attributes of a result: ``Conventions``, ``source``, ``references``,
+    ``history`` (a line naming the time and the case file), the scales.
+
+    Args:
+        case: the :class:`spotpde.cases.Case` (its source file goes into ``history``).
+        history: include ``history`` (it holds the time, so two runs differ in it).
+    """
+    import datetime
+
+    from ._version import __version__
+
+    now = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+    origin = getattr(case, "source", None)
+    out = {
+        "Conventions": CONVENTIONS,
+        "source": f"spotpde {__version__}: continuum equations of the spot model",
+        "references": REFERENCES,
+        "history": f"{now} spotpde {__version__}: run "
+                   + (f"of {origin}" if origin else "of a case given as a mapping"),
+        "length_scale": LENGTH_SCALE,
+        "time_scale": TIME_SCALE,
+    }
+    if not history:
+        del out["history"]
+    return out
 
 
 def variable_attrs(name: str, dims: int) -> dict[str, str]:
-    """``units`` and ``long_name`` of a result variable.
+    """``units``, ``long_name`` and ``spotpde_units`` of a result variable (:func:`cf_units`).
 
     Args:
-        name: a CONTRACT.md variable name (``rho_s``, ``v_kin``, ``u_x``, ``D_xz``, ``P`` ...).
+        name: a result variable name (``rho_s``, ``v_kin``, ``u_x``, ``D_xz``, ``P`` ...;
+            docs/interface.md).
         dims: 2 or 3.
 
     Returns:
-        ``{"units": ..., "long_name": ...}``.
+        ``{"units": "1", "long_name": ..., "spotpde_units": ...}``.
 
     Raises:
         KeyError: for a name that is not a result variable.
     """
     axis = {"x": "x", "y": "y", "z": "z"}
     if name == "rho_s":
-        return {"units": f"d-{dims}", "long_name": "mean spot density (spots per unit volume)"}
+        return cf_units(f"d-{dims}", "mean spot density (spots per unit volume)")
     if name == "v_kin":
-        return {"units": "d t-1",
-                "long_name": "kinematic-model downward particle speed (flux V1*Q0)"}
+        return cf_units("d t-1", "kinematic-model downward particle speed (flux V1*Q0)")
     if name.startswith("u_") and name[2:] in axis:
-        return {"units": "d t-1", "long_name": f"particle drift u_p, {name[2:]} component"}
+        return cf_units("d t-1", f"particle drift u_p, {name[2:]} component")
     if name.startswith("D_") and len(name) == 4 and set(name[2:]) <= set(axis):
-        return {"units": "d2 t-1",
-                "long_name": f"particle diffusivity D_p, {name[2:]} component"}
+        return cf_units("d2 t-1", f"particle diffusivity D_p, {name[2:]} component")
     if name == "P":
-        return {"units": f"d-{dims}", "long_name": "tracer propagator (probability density)"}
+        return cf_units(f"d-{dims}", "tracer propagator (probability density)")
     if name == "P_height":
-        return {"units": f"d-{dims - 1}",
-                "long_name": "geometrical propagator: density of where the tracer crosses "
-                             "each height (time-integrated downward probability flux)"}
+        return cf_units(f"d-{dims - 1}",
+                        "geometrical propagator: density of where the tracer crosses "
+                        "each height (time-integrated downward probability flux)")
     if name == "mass":
-        return {"units": "1", "long_name": "tracer probability inside the domain"}
+        return cf_units("1", "tracer probability inside the domain")
     if name == "outflow":
-        return {"units": "1",
-                "long_name": "tracer probability that has left through the orifice "
-                             "(and through open side walls, where the walls are open)"}
+        return cf_units("1", "tracer probability that has left through the orifice "
+                        "(and through open side walls, where the walls are open)")
     raise KeyError(f"{name!r} is not a spotpde result variable; valid: rho_s, v_kin, "
                    "u_x, u_y, u_z, D_xx, D_yy, D_zz, D_xy, D_xz, D_yz, P, P_height, mass, "
                    "outflow")
@@ -106,11 +174,11 @@ def make_dataset(
     for axis in grid.axes:
         units, long_name = COORDS[axis]
         coords[axis] = (axis, np.asarray(grid.coords()[axis], dtype=float),
-                        {"units": units, "long_name": long_name})
+                        {**cf_units(units, long_name), **AXES[axis]})
     if times is not None:
         units, long_name = COORDS["t"]
         coords["t"] = ("t", np.asarray(times, dtype=float),
-                       {"units": units, "long_name": long_name})
+                       {**cf_units(units, long_name), **AXES["t"]})
     data_vars = {}
     for name, arr in fields.items():
         arr = np.asarray(arr, dtype=float)
@@ -125,9 +193,14 @@ def make_dataset(
                                     if times is not None else [])
             raise ValueError(f"{name}: array of shape {arr.shape} fits none of the result "
                              f"shapes {valid}")
-        data_vars[name] = (dims, arr, variable_attrs(name, grid.dims))
+        attrs_v = variable_attrs(name, grid.dims)
+        if attrs_v.get("units", "1") != "1":     # a scale in symbols: make it CF
+            attrs_v = {**attrs_v, **cf_units(attrs_v["units"], attrs_v["long_name"])}
+        data_vars[name] = (dims, arr, attrs_v)
     ds = xr.Dataset(data_vars, coords=coords, attrs=dict(attrs or {}))
     ds.attrs.setdefault("units_note", UNITS_NOTE)
+    for key, value in cf_attrs(history=False).items():
+        ds.attrs.setdefault(key, value)
     return ds
 
 
@@ -152,11 +225,10 @@ def write_netcdf(ds: xr.Dataset, path: str | os.PathLike, *, complevel: int = 4)
         ds.to_netcdf(tmp, mode="w", format="NETCDF4", engine="netcdf4",
                      encoding=_encoding(ds, complevel))
         _publish(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
+    except BaseException as exc:
+        _unlink(tmp)
+        if isinstance(exc, Exception) and not isinstance(exc, WriteError):
+            raise _write_error(path, exc) from None
         raise
     return path
 
@@ -198,8 +270,17 @@ class FrameWriter:
         self._nc = nc
 
     def __call__(self, index: int, time: float, P: np.ndarray) -> None:
-        """Write frame ``index`` (the tracer's ``on_frame`` callback)."""
-        self._nc["P"][index] = P
+        """Write frame ``index`` (the tracer's ``on_frame`` callback).
+
+        Raises:
+            spotpde.errors.WriteError: the frame could not be written (disk full, file
+                size limit); the temporary file has been removed.
+        """
+        try:
+            self._nc["P"][index] = P
+        except Exception as exc:
+            self.abort()
+            raise _write_error(self.path, exc) from None
 
     def finish(self, ds: xr.Dataset) -> Path:
         """Add every other variable and the global attributes, then rename onto ``path``.
@@ -211,21 +292,30 @@ class FrameWriter:
         Returns:
             The absolute path written.
         """
-        self._nc.close()
-        ds.to_netcdf(self.tmp, mode="a", format="NETCDF4", engine="netcdf4",
-                     encoding=_encoding(ds, self.complevel))
-        _publish(self.tmp, self.path)
+        try:
+            nc, self._nc = self._nc, None     # closed once, here, even if closing fails
+            nc.close()
+            ds.to_netcdf(self.tmp, mode="a", format="NETCDF4", engine="netcdf4",
+                         encoding=_encoding(ds, self.complevel))
+            _publish(self.tmp, self.path)
+        except BaseException as exc:
+            self.abort()
+            if isinstance(exc, Exception) and not isinstance(exc, WriteError):
+                raise _write_error(self.path, exc) from None
+            raise
         return self.path
 
     def abort(self) -> None:
-        """Remove the temporary file (nothing is left behind)."""
-        nc = getattr(self, "_nc", None)
-        if nc is not None and nc.isopen():
-            nc.close()
-        try:
-            os.unlink(self.tmp)
-        except FileNotFoundError:
-            pass
+        """Close the file if it is still open and remove the temporary file (nothing is
+        left behind; safe to call more than once, and after a failed close)."""
+        nc, self._nc = getattr(self, "_nc", None), None
+        if nc is not None:
+            try:
+                if nc.isopen():
+                    nc.close()
+            except Exception:  # noqa: BLE001 - a failing close (disk full) must not stop the unlink
+                pass
+        _unlink(self.tmp)
 
     def __enter__(self) -> "FrameWriter":
         return self
@@ -261,6 +351,57 @@ def read_netcdf(path: str | os.PathLike) -> xr.Dataset:
         raise ValueError(f"{path}: not a spotpde result (missing {', '.join(missing)}; "
                          f"found {', '.join(map(str, ds.data_vars)) or 'no variables'})")
     return ds
+
+
+def check_single_run(ds: xr.Dataset, path: str | os.PathLike = "result") -> None:
+    """Check that a Dataset is the result of one run, as :func:`plot_result
+    <spotpde.plotting.plot_result>` and the analysis functions expect.
+
+    Every :data:`REQUIRED` variable must have dims ``("z", "x")`` or ``("z", "y", "x")``
+    (``P`` a leading ``"t"``) with at least 2 points along each.
+
+    Args:
+        ds: a Dataset read by :func:`read_netcdf`.
+        path: the file it came from (for the message).
+
+    Raises:
+        ValueError: naming the file and what is different (e.g. a sweep result, whose
+            variables have the swept keys as leading dimensions).
+    """
+    allowed = (("z", "x"), ("z", "y", "x"))
+    dims = tuple(ds["rho_s"].dims)
+    if dims not in allowed:
+        extra = [d for d in dims if d not in ("z", "y", "x")]
+        hint = (f"; it looks like a sweep result over {', '.join(map(str, extra))}: select "
+                "one member first, e.g. ds.isel(" + ", ".join(f"{d}=0" for d in extra)
+                + ")") if extra and "sweep_keys" in ds.attrs else ""
+        raise ValueError(f"{os.fspath(path)}: not a single-run result (rho_s has dims "
+                         f"{dims}, expected ('z', 'x') or ('z', 'y', 'x')){hint}")
+    for name in REQUIRED:
+        if tuple(ds[name].dims) != dims:
+            raise ValueError(f"{os.fspath(path)}: not a single-run result ({name} has dims "
+                             f"{tuple(ds[name].dims)}, expected {dims})")
+    if "P" in ds.data_vars and tuple(ds["P"].dims) != ("t", *dims):
+        raise ValueError(f"{os.fspath(path)}: not a single-run result (P has dims "
+                         f"{tuple(ds['P'].dims)}, expected {('t', *dims)})")
+    small = [d for d in dims if ds.sizes[d] < 2 or d not in ds.coords]
+    if small:
+        raise ValueError(f"{os.fspath(path)}: not a single-run result (dimension "
+                         f"{small[0]} needs a coordinate and at least 2 points)")
+
+
+def _write_error(path: Path, exc: BaseException) -> WriteError:
+    """A :class:`WriteError` naming ``path`` and the cause (its temporary file is gone)."""
+    why = (exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)) or \
+        type(exc).__name__
+    return WriteError(f"could not write {path} ({why}); nothing was written")
+
+
+def _unlink(path: str) -> None:
+    try:
+        os.unlink(path)
+    except FileNotFoundError:
+        pass
 
 
 def _encoding(ds: xr.Dataset, complevel: int) -> dict:

@@ -19,7 +19,7 @@ those at ``spots.t_end`` (the same solve when ``spots.t_end = tracer.t_end``).
 With ``run(case, path=...)`` the tracer's ``on_frame`` is an :class:`spotpde.io.FrameWriter`
 that streams every frame to the result file, so ``P`` is never held in memory whole.
 
-The Dataset has the CONTRACT.md variables and global attributes ``V1``, ``V2``, ``rule``,
+The Dataset has the public variables (docs/interface.md) and global attributes ``V1``, ``V2``, ``rule``,
 ``model``, ``spotpde_version`` and ``case`` (the validated case as TOML).
 """
 
@@ -36,7 +36,7 @@ from .._version import __version__
 from .cases import Case, load_case
 from ..errors import CaseError, NumericalError
 from .._roundoff import clip_roundoff
-from .io import FrameWriter, make_dataset, write_netcdf
+from .io import cf_attrs, FrameWriter, make_dataset, write_netcdf
 from ..parameters import TracerStart, in_bands
 
 #: The pipeline's stages, in order, as reported to ``progress``.
@@ -63,12 +63,21 @@ def run(case: Case | str, progress: Progress | None = None, *,
 
     Raises:
         spotpde.CaseError: invalid case (only when ``case`` is a path or mapping).
+        ValueError: ``path`` cannot be written (missing or read-only directory, an
+            existing directory or device, the case file itself), checked before computing.
+        spotpde.errors.WriteError: writing ``path`` failed (disk full); nothing is left.
         spotpde.NumericalError: a solver blew up, refused the derived fields (a
             ``CaseError`` raised inside a stage, re-raised with its lines), or a result
             holds NaN or infinity.
     """
     if not isinstance(case, Case):
         case = load_case(case)
+    if path is not None:   # before computing: a missing or read-only directory, ...
+        from ._outputs import output_problem
+
+        problem = output_problem(path, inputs=[case.source] if case.source else ())
+        if problem:
+            raise ValueError(f"path: {problem}")
     try:
         if path is None:
             return _run(case, progress)
@@ -160,6 +169,7 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
     }
     if case.source is not None:
         attrs["case_file"] = str(case.source)
+    attrs.update(cf_attrs(case))   # Conventions, history, source, references, scales
     ds = make_dataset(grid, out, times=times, attrs=attrs)
     if interacting is not None:
         ds = importlib.import_module("spotpde.density.traffic").add_outputs(ds, case, interacting)

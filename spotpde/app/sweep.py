@@ -10,8 +10,14 @@ spotpde installed). Each finished member is written, atomically, to
 a sweep that is interrupted or partly failed is *resumed* by running it again: members
 whose file exists are read, not rerun.
 
-The members are combined into one Dataset whose leading dimensions are the swept keys
-(named by their dotted key, e.g. ``kernel.size``), in the order given. Per-member
+The members are combined into one Dataset whose leading dimensions are the swept keys,
+in the order given, named by the key with its dots replaced by underscores
+(:func:`dim_name`: ``kernel.size`` -> ``kernel_size``, a valid netCDF/CF name; the
+coordinate's ``case_key`` attribute keeps the dotted key). A member file that cannot be
+read (a run killed while the file was copied, a truncated file) is removed and the
+member run again. A scheduler address is checked before use: it must be a Dask address
+(``tcp://host:port`` or ``host:port``), answer within :data:`CONNECT_TIMEOUT` seconds,
+and not speak first (a service that sends a banner is not a Dask scheduler). Per-member
 numbers that are global attributes of a single run (``V1``, ``V2``, ``rule``) become
 variables over the swept dimensions. A member that failed is not dropped: its fields
 are NaN, ``status`` is 1 there, and the global attribute ``failed_members`` lists it by
@@ -38,6 +44,8 @@ from ..errors import CaseError
 
 #: Keys that change the grid cannot be swept into one Dataset.
 FIXED_KEYS = ("domain.dims", "domain.x", "domain.z", "domain.spacing", "output.path")
+#: Seconds allowed to connect to a user's scheduler (``$SPOTPDE_CONNECT_TIMEOUT``).
+CONNECT_TIMEOUT = float(os.environ.get("SPOTPDE_CONNECT_TIMEOUT", "10") or 10)
 #: Global attributes of a single run that become variables over the swept dimensions.
 MEMBER_NUMBERS = {"V1": ("d{dims}", "first interaction volume: integral of w"),
                   "V2": ("d{dims}", "second interaction volume: integral of w**2"),
@@ -137,6 +145,30 @@ def _label(settings: Mapping, values: Sequence) -> str:
     return ", ".join(f"{k}={v}" for k, v in zip(settings, values))
 
 
+def dim_name(key: str) -> str:
+    """The sweep dimension of a dotted case key: dots replaced by underscores."""
+    return key.replace(".", "_")
+
+
+def _readable(path: Path) -> bool:
+    """True if ``path`` is a complete member result; an unreadable one is removed."""
+    if not path.is_file():
+        return False
+    try:
+        with xr.open_dataset(path, engine="netcdf4") as ds:
+            ok = "rho_s" in ds.data_vars
+            if ok:
+                ds["rho_s"].values   # reads the data, not only the header
+    except Exception:  # noqa: BLE001 - truncated/corrupt HDF5 raises assorted errors
+        ok = False
+    if not ok:
+        try:
+            path.unlink()
+        except OSError:
+            pass
+    return ok
+
+
 def member_path(directory: Path, member: Case) -> Path:
     """Where a member's result is kept: named by the hash of its case text."""
     digest = hashlib.sha1(member.to_toml().encode()).hexdigest()[:16]
@@ -203,12 +235,26 @@ def sweep_case(
     output = Path(os.path.abspath(output if output is not None else case.output_path))
     if not output.parent.is_dir():
         raise CaseError(f"output.path: the directory {output.parent} does not exist")
+    own_client = None
+    if isinstance(scheduler, str):      # checked before anything is written or reported
+        scheduler = own_client = connect(scheduler)
+    try:
+        return _sweep(case, settings, todo_members, output, scheduler, n_workers, progress)
+    finally:
+        if own_client is not None:
+            own_client.close()
+
+
+def _sweep(case, settings, todo_members, output, scheduler, n_workers, progress):
+    """:func:`sweep_case` once the members are validated and the scheduler connected."""
+    from .io import read_netcdf, write_netcdf
+
     directory = output.with_name(output.name + ".members")
     directory.mkdir(exist_ok=True)
 
     paths = [member_path(directory, m) for _, m in todo_members]
     status: dict[int, tuple[str, str]] = {
-        i: ("ok", os.fspath(p)) for i, p in enumerate(paths) if p.is_file()}
+        i: ("ok", os.fspath(p)) for i, p in enumerate(paths) if _readable(p)}
     todo = [i for i in range(len(paths)) if i not in status]
     done = len(status)
     if progress is not None:
@@ -235,14 +281,16 @@ def _run_on_dask(tasks: list[tuple[str, str]], scheduler, n_workers):
     """Yield ``(task index, run_member result)`` as tasks finish."""
     from distributed import Client, LocalCluster, as_completed
 
+    import logging
+
     cluster = None
     if scheduler is None:
         workers = n_workers or min(os.cpu_count() or 1, len(tasks))
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None)
+                               dashboard_address=None, silence_logs=logging.ERROR)
         client = Client(cluster)
     elif isinstance(scheduler, str):
-        client = Client(scheduler)
+        client = connect(scheduler)
     else:
         client = scheduler
     try:
@@ -254,11 +302,105 @@ def _run_on_dask(tasks: list[tuple[str, str]], scheduler, n_workers):
             except Exception as exc:  # a worker died: report, do not drop
                 result = ("failed", f"{type(exc).__name__}: {exc}")
             yield index[future.key], result
+    except KeyboardInterrupt:
+        # Ctrl-C / SIGTERM: the workers are stopped with the cluster; their shutdown
+        # messages (dozens of lines of tracebacks) say nothing the user needs
+        for name in ("distributed", "tornado", "asyncio"):
+            logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+        raise
     finally:
         if client is not scheduler:
             client.close()
         if cluster is not None:
             cluster.close()
+
+
+def _handshake(address: str, timeout: float) -> None:
+    """Open and close one Dask comm to ``address`` (the protocol's handshake), in a
+    thread with its own event loop, within ``timeout`` seconds.
+
+    Raises:
+        TimeoutError: no handshake within ``timeout`` (a port that accepts and is silent).
+        OSError: the connection failed or was closed.
+    """
+    import asyncio
+    import threading
+
+    from distributed.comm import connect as comm_connect
+
+    async def probe():
+        comm = await asyncio.wait_for(comm_connect(address, timeout=timeout), timeout)
+        await comm.close()
+
+    outcome: list = []
+
+    def target():
+        try:
+            asyncio.run(probe())
+            outcome.append(None)
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller
+            outcome.append(exc)
+
+    thread = threading.Thread(target=target, daemon=True)   # never delays the exit
+    thread.start()
+    thread.join(timeout + 1.0)
+    if not outcome:
+        raise TimeoutError(f"no handshake within {timeout:g} s")
+    if outcome[0] is not None:
+        raise outcome[0]
+
+
+def connect(address: str, timeout: float | None = None):
+    """A ``distributed.Client`` on a running scheduler, checked first.
+
+    Args:
+        address: ``tcp://host:port``, ``tls://host:port`` or ``host:port``.
+        timeout: seconds to connect (default :data:`CONNECT_TIMEOUT`).
+
+    Raises:
+        spotpde.CaseError: ``--scheduler: ...`` for a malformed address, nothing
+            listening, no answer within ``timeout``, a service that is not a Dask
+            scheduler (it sends a banner before being asked), or a failed handshake.
+    """
+    import socket
+
+    from distributed import Client
+
+    timeout = CONNECT_TIMEOUT if timeout is None else float(timeout)
+    scheme, sep, rest = address.strip().rpartition("://")
+    host, colon, port = rest.rpartition(":")
+    host = host.strip("[]")
+    if (sep and scheme not in ("tcp", "tls")) or not colon or not host or not port.isdigit() \
+            or not 0 < int(port) < 65536 or any(c.isspace() for c in host):
+        raise CaseError(f"--scheduler: not a Dask scheduler address; expected "
+                        f"tcp://host:port or host:port, got {address!r}")
+    try:
+        with socket.create_connection((host, int(port)), timeout=timeout) as sock:
+            sock.settimeout(min(0.5, timeout))
+            try:
+                banner = sock.recv(64)
+            except TimeoutError:          # silent until asked: as a Dask scheduler is
+                banner = None
+    except TimeoutError:
+        raise CaseError(f"--scheduler: {address} did not answer within {timeout:g} s") from None
+    except OSError as exc:
+        raise CaseError(f"--scheduler: cannot connect to {address} "
+                        f"({exc.strerror or exc})") from None
+    if banner is not None:
+        shown = banner.split(b"\n")[0].decode("ascii", "replace").strip()[:40]
+        raise CaseError(f"--scheduler: {address} is not a Dask scheduler (it sent "
+                        f"{shown!r} before being asked)" if banner else
+                        f"--scheduler: {address} closed the connection; not a Dask scheduler")
+    full = f"{scheme or 'tcp'}://{rest}"
+    try:
+        _handshake(full, timeout)   # Client's own timeout does not bound the handshake
+        return Client(full, timeout=timeout)
+    except TimeoutError:
+        raise CaseError(f"--scheduler: no Dask scheduler at {address} (no answer to the "
+                        f"handshake within {timeout:g} s)") from None
+    except (OSError, ValueError, MemoryError, OverflowError) as exc:
+        raise CaseError(f"--scheduler: no Dask scheduler at {address} "
+                        f"({type(exc).__name__}: {str(exc)[:200]})") from None
 
 
 def combine(case: Case, settings: Mapping[str, Sequence], results: list) -> xr.Dataset:
@@ -276,6 +418,7 @@ def combine(case: Case, settings: Mapping[str, Sequence], results: list) -> xr.D
         spotpde.NumericalError: every member failed (there is nothing to combine).
     """
     from ..errors import NumericalError
+    from .io import cf_attrs, cf_units
 
     good = [r for _, r in results if isinstance(r, xr.Dataset)]
     failed = [(values, r) for values, r in results if not isinstance(r, xr.Dataset)]
@@ -291,25 +434,27 @@ def combine(case: Case, settings: Mapping[str, Sequence], results: list) -> xr.D
     stacked = xr.concat(parts, dim="member", join="outer", combine_attrs="drop")
     index = [np.asarray(v) for v in settings.values()]
     data_vars = {}
+    swept = tuple(dim_name(k) for k in settings)
     for name, var in stacked.data_vars.items():
         arr = var.values.reshape(shape + var.shape[1:])
-        data_vars[name] = (tuple(settings) + var.dims[1:], arr, template[name].attrs)
+        data_vars[name] = (swept + var.dims[1:], arr, template[name].attrs)
     dims = case.grid.dims
     for name, vals in numbers.items():
         units, long_name = MEMBER_NUMBERS[name]
-        data_vars[name] = (tuple(settings), np.reshape(vals, shape),
-                           {"units": units.format(dims=dims), "long_name": long_name})
+        data_vars[name] = (swept, np.reshape(vals, shape),
+                           cf_units(units.format(dims=dims), long_name))
     status = np.reshape([0 if isinstance(r, xr.Dataset) else 1 for _, r in results], shape)
-    data_vars["status"] = (tuple(settings), status.astype(np.int8),
+    data_vars["status"] = (swept, status.astype(np.int8),
                            {"units": "1", "long_name": "member status: 0 finished, 1 failed",
                             "flag_values": np.array([0, 1], dtype=np.int8),
                             "flag_meanings": "finished failed"})
-    coords = {k: (k, idx, {"units": _units_of(k, dims), "long_name": f"swept case key {k}"})
+    coords = {dim_name(k): (dim_name(k), idx, {**_units_of(k, dims), "case_key": k})
               for k, idx in zip(settings, index)}
     for d in stacked.dims:
         if d != "member":
             coords[d] = (d, stacked[d].values, template[d].attrs)
     out = xr.Dataset(data_vars, coords=coords)
+    out.attrs.update(cf_attrs(case))
     out.attrs.update({
         "spotpde_version": __version__,
         "case": case.to_toml(),
@@ -320,12 +465,15 @@ def combine(case: Case, settings: Mapping[str, Sequence], results: list) -> xr.D
     return out
 
 
-def _units_of(key: str, dims: int) -> str:
-    """Units of a swept case key (docs/cases.md), ``"1"`` for choices and pure numbers."""
+def _units_of(key: str, dims: int) -> dict[str, str]:
+    """CF attributes of a swept case key (docs/cases.md): ``units = "1"`` and a long name
+    giving the scale (:func:`spotpde.io.cf_units`)."""
+    from .io import cf_units
+
     units = {"orifice.x": "d", "orifice.y": "d", "orifice.width": "d", "orifice.rate": "t-1",
              "spots.drift": "d t-1", "spots.b": "d", "spots.b_par": "d", "spots.t_end": "t",
              "kernel.size": "d", "kernel.volume": f"d{dims}", "tracer.t_end": "t"}
-    return units.get(key, "1")
+    return cf_units(units.get(key, "1"), f"swept case key {key}")
 
 
 __all__ = ["parse_settings", "members", "sweep_case", "combine", "run_member"]

@@ -1,6 +1,6 @@
 """Finite-volume operator of the spot Fokker-Planck equation and its steady solve.
 
-Equation (PHYSICS.md section 1, Ito form, drift ``v_s`` up):
+Equation (docs/conventions.md section 1, Ito form, drift ``v_s`` up):
 
     d rho/dt = -div J + S,   J_perp = -grad_perp (D_perp rho),
                              J_z    = v_s rho - d/dz (D_par rho).

@@ -1,6 +1,6 @@
 """Height marching of the steady spot flux for spatially varying ``b`` (``D_par = 0``).
 
-Equation (PHYSICS.md section 1, steady, ``D_par = 0``, Ito form): with the upward spot
+Equation (docs/conventions.md section 1, steady, ``D_par = 0``, Ito form): with the upward spot
 flux density ``phi = v_s rho_s`` and ``D_perp rho_s = b phi``,
 
     d phi / dz = lap_perp (b phi),        no flux through the side walls.

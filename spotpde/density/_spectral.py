@@ -1,7 +1,7 @@
 """Exact-in-height steady spot flux for constant ``b`` between reflecting walls.
 
 Solves ``d phi / dz = b lap_perp phi`` (``phi = v_s rho_s``, the upward spot flux
-density, PHYSICS.md section 1 with ``D_par = 0``) for ``z > z0`` with no flux through the
+density, docs/conventions.md section 1 with ``D_par = 0``) for ``z > z0`` with no flux through the
 side walls and ``phi(x, z0) = Q0 s(x)``. Each cosine mode of the floor profile decays
 independently:
 

@@ -1,4 +1,4 @@
-"""The Kinematic Model of silo drainage (PHYSICS.md section 4; paper eqs. law, kin).
+"""The Kinematic Model of silo drainage (docs/conventions.md section 4; paper eqs. law, kin).
 
 Downward speed ``v`` and horizontal velocity ``u_perp`` of the particles obey
 
@@ -21,7 +21,6 @@ import numpy as np
 from numba import njit
 from scipy.integrate import solve_ivp
 
-from ..errors import CaseError
 from ..grid import Grid
 from ..parameters import Orifice, Spots
 from . import spot_density
@@ -49,9 +48,9 @@ def point_source(x, z, b, dims: int = 2):
         (a float for scalar input).
     """
     if dims not in (2, 3):
-        raise CaseError(f"domain.dims: must be 2 or 3, got {dims!r}")
+        raise ValueError(f"dims: must be 2 or 3, got {dims!r}")
     if not np.all(np.asarray(b) > 0):
-        raise CaseError(f"spots.b: must be > 0, got {b!r}")
+        raise ValueError(f"b: must be > 0, got {b!r}")
     x = np.asarray(x, dtype=float)
     z = np.asarray(z, dtype=float)
     x, z = np.broadcast_arrays(x, z)
@@ -171,14 +170,14 @@ def streamlines(fields: dict[str, np.ndarray], grid: Grid, starts, max_length: f
     starts = np.atleast_2d(np.asarray(starts, dtype=float))
     dims = grid.dims
     if starts.shape[1] != dims:
-        raise CaseError(f"streamlines: starts must have {dims} columns (x, [y,] z), got {starts.shape}")
+        raise ValueError(f"starts: must have {dims} columns (x, [y,] z), got shape {starts.shape}")
     names = ["u_x"] + (["u_y"] if dims == 3 else []) + ["u_z"]
     missing = [n for n in names if n not in fields]
     if missing:
-        raise CaseError(f"streamlines: fields lack {missing}; need {names}")
+        raise ValueError(f"fields: lack {missing}; need {names}")
     stack = np.stack([np.asarray(fields[n], dtype=float) for n in names])
     if stack.shape[1:] != grid.shape:
-        raise CaseError(f"streamlines: fields must have the grid shape {grid.shape}, got {stack.shape[1:]}")
+        raise ValueError(f"fields: must have the grid shape {grid.shape}, got {stack.shape[1:]}")
     lo = np.array([grid.z[0]] + ([grid.y[0]] if dims == 3 else []) + [grid.x[0]])
     u = np.empty(dims)
     interp = _linear2 if dims == 2 else _linear3

@@ -1,6 +1,6 @@
 """Spot sources on the floor: the horizontal injection profile and the rate Q0(t).
 
-Spots enter through the orifice, a part of the floor ``z = z0`` (PHYSICS.md section 1).
+Spots enter through the orifice, a part of the floor ``z = z0`` (docs/conventions.md section 1).
 The injection flux density is ``Q0(t) * s(x)`` (spots per unit time per d**(dims-1)),
 with ``s`` a density over the floor that integrates to 1.
 

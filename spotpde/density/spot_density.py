@@ -1,4 +1,4 @@
-"""Mean spot density ``rho_s``: steady and transient (PHYSICS.md section 1).
+"""Mean spot density ``rho_s``: steady and transient (docs/conventions.md section 1).
 
     d rho_s/dt + d/dz (v_s rho_s) = lap_perp (D_perp rho_s) + d2/dz2 (D_par rho_s) + S
 

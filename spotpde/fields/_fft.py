@@ -63,13 +63,10 @@ def threads() -> int:
 
 
 def cache_dir() -> Path:
-    """The spotpde user cache directory (not created here)."""
-    env = os.environ.get("SPOTPDE_CACHE_DIR")
-    if env:
-        return Path(env)
-    xdg = os.environ.get("XDG_CACHE_HOME")
-    base = Path(xdg) if xdg else Path.home() / ".cache"
-    return base / "spotpde"
+    """The spotpde user cache directory (not created here): see :mod:`spotpde._cache`."""
+    from ._cache import user_cache_dir
+
+    return user_cache_dir()
 
 
 def wisdom_path() -> Path:

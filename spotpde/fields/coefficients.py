@@ -1,4 +1,4 @@
-"""Nonlocal drift and diffusivity of particles in the spot model (PHYSICS.md section 2).
+"""Nonlocal drift and diffusivity of particles in the spot model (docs/conventions.md section 2).
 
 A spot at ``r_s`` stepping by ``dR_s`` moves a particle at ``r`` by
 ``-w(r - r_s - lam dR_s) dR_s``. Expanding to second order in ``dR_s`` and averaging over
@@ -121,7 +121,7 @@ def spot_diffusivity(grid: Grid, spots: Spots, tensor: Mapping | None = None) ->
     Args:
         grid: the grid (its ``dims`` decides the components).
         spots: spot parameters; ``D_s = diag(D_perp, [D_perp,] D_par)`` with
-            ``D_perp = b v_s`` and ``D_par = b_par v_s`` (PHYSICS.md, eq. Ds of the paper).
+            ``D_perp = b v_s`` and ``D_par = b_par v_s`` (docs/conventions.md; eq. Ds of the paper).
         tensor: optional full tensor overriding ``spots``: a mapping from keys
             ``D_xx``, ``D_xz``, ... (any subset; missing components are zero) to floats or
             grid arrays.
@@ -472,7 +472,7 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
                     ) -> dict[str, np.ndarray]:
     """Particle drift ``u_p`` and diffusivity ``D_p`` of the spot model.
 
-    Implements (PHYSICS.md section 2, derivation in docs/coefficients.md)::
+    Implements (docs/conventions.md section 2, derivation in docs/coefficients.md)::
 
         u_p = - w * (rho_s u_s - 2 lam div(D_s rho_s)) + (1 - 2 lam) wall layer
         D_p =   w^2 * (rho_s D_s)
@@ -555,7 +555,7 @@ def flux_velocity(grid: Grid, fields: Mapping[str, np.ndarray]) -> dict[str, np.
 
     The Fokker-Planck flux is ``J = u_p P - div(D_p P)``; at uniform ``P`` it is
     ``P (u_p - div D_p)``, the mean (Eulerian) velocity a kinematic model describes
-    (PHYSICS.md section 3). Derivatives are second-order grid differences.
+    (docs/conventions.md section 3). Derivatives are second-order grid differences.
 
     Args:
         grid: the grid.

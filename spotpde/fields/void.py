@@ -311,7 +311,7 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, V1: float,
                     rule: float = 1.0) -> dict[str, np.ndarray]:
     """Particle drift and diffusivity of the void model (local kernel, ``V2 = V1``).
 
-    Local limit of the spot-model coefficients (PHYSICS.md section 2)::
+    Local limit of the spot-model coefficients (docs/conventions.md section 2)::
 
         u_p = -V1 (rho_s u_s - 2 lam div(D_s rho_s)),   D_p = V1 rho_s D_s
 

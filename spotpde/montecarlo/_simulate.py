@@ -46,7 +46,6 @@ import xarray as xr
 
 from . import _mc_kernels as K
 from .._version import __version__
-from ..errors import CaseError
 from ..grid import Grid
 from ..parameters import Orifice, Spots, in_bands
 
@@ -104,15 +103,15 @@ def kernel_params(kernel, cutoff: float = CUTOFF) -> KernelParams:
     makes the Monte Carlo 2-4 times slower for no measurable gain).
 
     Raises:
-        CaseError: for a 3D kernel or an unknown kernel class.
+        ValueError: for a 3D kernel or an unknown kernel class.
     """
     if getattr(kernel, "dims", 2) != 2:
-        raise CaseError("domain.dims: the Monte Carlo is 2D only")
+        raise ValueError("kernel: the Monte Carlo is 2D only, got a 3D kernel")
     name = type(kernel).__name__.lower()
     if name not in _SHAPE_CODES:
         name = str(getattr(kernel, "shape_name", name)).lower()
     if name not in _SHAPE_CODES:
-        raise CaseError(f"kernel.shape: Monte Carlo supports {tuple(_SHAPE_CODES)}, got {name!r}")
+        raise ValueError(f"kernel: the Monte Carlo supports {tuple(_SHAPE_CODES)}, got {name!r}")
     code = _SHAPE_CODES[name]
     aspect = float(getattr(kernel, "aspect", 1.0))
     size = float(getattr(kernel, "a_h", None) or getattr(kernel, {"uniform": "radius",
@@ -314,7 +313,7 @@ class MCResult:
 # ---------------------------------------------------------------------------------------
 def _scalar(name, value) -> float:
     if np.ndim(value) != 0:
-        raise CaseError(f"{name}: the Monte Carlo needs a constant, got an array")
+        raise ValueError(f"{name}: the Monte Carlo needs a constant, got an array")
     return float(value)
 
 
@@ -364,16 +363,16 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
         :class:`MCResult`.
 
     Raises:
-        CaseError: invalid parameters (message names the key).
+        ValueError: invalid parameters (the message names the argument).
     """
     problems = []
     if grid.dims != 2:
-        problems.append("domain.dims: the Monte Carlo is 2D only")
+        problems.append(f"grid: the Monte Carlo is 2D only, got dims = {grid.dims}")
     v_s = _scalar("spots.drift", spots.drift)
     b = _scalar("spots.b", spots.b)
     b_par = _scalar("spots.b_par", spots.b_par)
     if callable(orifice.rate):
-        problems.append("orifice.rate: the Monte Carlo needs a constant rate")
+        problems.append("orifice.rate: the Monte Carlo needs a constant rate, got a function of time")
         Q0 = 0.0
     else:
         Q0 = float(orifice.rate)
@@ -386,17 +385,17 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
     if not Q0 > 0:
         problems.append(f"orifice.rate: must be > 0, got {Q0}")
     if not 0.0 <= gamma < 1.0:
-        problems.append(f"montecarlo.gamma: must be in [0, 1), got {gamma}")
+        problems.append(f"gamma: must be in [0, 1), got {gamma}")
     if steps not in STEPS:
-        problems.append(f"montecarlo.steps: must be one of {STEPS}, got {steps!r}")
+        problems.append(f"steps: must be one of {STEPS}, got {steps!r}")
     if not 0.0 <= rule <= 1.0:
-        problems.append(f"kernel.rule: must be in [0, 1], got {rule}")
+        problems.append(f"rule: must be in [0, 1], got {rule}")
     if (t_end is None) == (n_spots is None):
-        problems.append("montecarlo.t_end: give exactly one of t_end and n_spots")
+        problems.append(f"t_end, n_spots: give exactly one of them, got t_end={t_end!r}, n_spots={n_spots!r}")
     if walls not in ("renormalise", "truncate"):
-        problems.append(f'kernel.walls: must be one of "renormalise", "truncate", got {walls!r}')
+        problems.append(f'walls: must be one of "renormalise", "truncate", got {walls!r}')
     if problems:
-        raise CaseError(problems)
+        raise ValueError("; ".join(problems))
     kp = kernel_params(kernel, cutoff)
     if t_end is None:
         t_end = float(n_spots) / Q0
@@ -404,7 +403,7 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
         step = 0.25 * min(kp.size_v, kp.reach[1])
     step = float(step)
     if not (t_end > 0 and step > 0):
-        raise CaseError(f"montecarlo.t_end: must be > 0, got {t_end}")
+        raise ValueError(f"t_end: must be > 0 (and step > 0), got t_end={t_end}, step={step}")
     dt = step / v_s
     n_ticks = max(1, int(round(t_end / dt)))
     t_end = n_ticks * dt
@@ -463,7 +462,7 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
         tracked = np.zeros(0, np.int64)
     elif isinstance(tracked, str):
         if tracked != "all":
-            raise CaseError(f"montecarlo.tracked: 'all', None or indices, got {tracked!r}")
+            raise ValueError(f"tracked: must be 'all', None or indices, got {tracked!r}")
         tracked = np.arange(n)
     tracked = np.asarray(tracked, np.int64)
     track_slot = -np.ones(n, np.int64)
@@ -556,11 +555,11 @@ def from_case(case, *, particles="lattice", spacing: float = 1.0, **kwargs) -> M
             particles = blob(st.x, st.z, st.width, 2000, seed=kwargs.get("seed", 0))
             kwargs.setdefault("tracked", "all")
         else:
-            raise CaseError(f"montecarlo.particles: unknown {particles!r}; valid: 'lattice', "
+            raise ValueError(f"particles: unknown {particles!r}; valid: 'lattice', "
                             "'random', 'tracer', None or an (N, 2) array of positions")
     if "t_end" not in kwargs and "n_spots" not in kwargs:
         if case.tracer is None:
-            raise CaseError("tracer.t_end: give t_end or n_spots for a case without [tracer]")
+            raise ValueError("t_end: give t_end or n_spots for a case without [tracer]")
         kwargs["t_end"] = case.tracer.t_end
     kwargs.setdefault("rule", case.rule)
     kwargs.setdefault("walls", getattr(case, "kernel_walls", "renormalise"))
@@ -665,7 +664,11 @@ def uniform_flow_prediction(kernel, b: float, flux: float, rule: float = 0.5,
 # Measurements
 # ---------------------------------------------------------------------------------------
 def _da(data, grid, units, long_name, **attrs):
-    return xr.DataArray(data, dims=("z", "x"), attrs={"units": units, "long_name": long_name, **attrs})
+    # CF: lengths in d and times in the case unit are pure numbers (units "1"; "d" would
+    # read as a day); the scale goes into the long name and spotpde_units
+    return xr.DataArray(data, dims=("z", "x"), attrs={
+        "units": "1", "long_name": f"{long_name}, in {units.replace('time', 'time unit')}",
+        "spotpde_units": units, **attrs})
 
 
 def measure(result: MCResult, tracer: bool = True) -> xr.Dataset:
@@ -687,8 +690,8 @@ def measure(result: MCResult, tracer: bool = True) -> xr.Dataset:
     counters and performance, ``spotpde_version``, ``source = "montecarlo"``.
     """
     g = result.grid
-    coords = {"z": ("z", g.z, {"units": "d", "long_name": "height above the orifice"}),
-              "x": ("x", g.x, {"units": "d", "long_name": "horizontal position"})}
+    coords = {"z": ("z", g.z, {"units": "1", "long_name": "height above the orifice, in particle diameters"}),
+              "x": ("x", g.x, {"units": "1", "long_name": "horizontal position, in particle diameters"})}
     ds = xr.Dataset(coords=coords)
     if result.probe is not None:
         bt = result.batch_ticks.astype(float) * result.dt  # duration of each batch
@@ -733,16 +736,16 @@ def particle_frames(result: MCResult, layer_spacing: float | None = None) -> xr.
 
     Frame 0 is the initial state (``t = 0``), then one frame per snapshot. With
     ``layer_spacing`` a boolean ``layer`` variable marks particles that started in the
-    coloured bands ``[k s, k s + s/2)`` (the layered-silo picture, CONTRACT.md ``layers``),
+    coloured bands ``[k s, k s + s/2)`` (the layered-silo picture, docs/interface.md, ``tracer.layers``),
     so the discrete layered silo is ``plt.scatter(f.x[k], f.z[k], c=f.layer)``.
     """
     start = result.initial[result.tracked]
     pos = np.concatenate([start[None], result.positions], axis=0)
     t = np.concatenate([[0.0], result.times])
     ds = xr.Dataset(
-        {"x": (("t", "particle"), pos[..., 0], {"units": "d", "long_name": "particle x (NaN: gone)"}),
-         "z": (("t", "particle"), pos[..., 1], {"units": "d", "long_name": "particle z (NaN: gone)"})},
-        coords={"t": ("t", t, {"units": "time", "long_name": "time"}),
+        {"x": (("t", "particle"), pos[..., 0], {"units": "1", "long_name": "particle x (NaN: gone), in particle diameters"}),
+         "z": (("t", "particle"), pos[..., 1], {"units": "1", "long_name": "particle z (NaN: gone), in particle diameters"})},
+        coords={"t": ("t", t, {"units": "1", "long_name": "time, in the case's time unit"}),
                 "particle": ("particle", result.tracked)})
     if layer_spacing is not None:
         ds["layer"] = ("particle", layer_mask(start[:, 1], layer_spacing),
@@ -772,10 +775,10 @@ def propagator(result: MCResult, select: np.ndarray | None = None) -> xr.DataArr
         v = v[np.isfinite(v)]
         out[k] = np.histogram(v, bins=edges)[0] / (n * g.spacing)
     return xr.DataArray(out, dims=("z", "x"),
-                        coords={"z": ("z", result.levels, {"units": "d"}), "x": ("x", g.x, {"units": "d"})},
-                        attrs={"units": "1 / d", "long_name":
+                        coords={"z": ("z", result.levels, {"units": "1", "long_name": "in particle diameters"}), "x": ("x", g.x, {"units": "1", "long_name": "in particle diameters"})},
+                        attrs={"units": "1", "spotpde_units": "1 / d", "long_name":
                                "geometrical propagator: density over x of first crossings of height z "
-                               "(Monte Carlo)", "n_particles": int(cx.shape[0])})
+                               "(Monte Carlo), per particle diameter", "n_particles": int(cx.shape[0])})
 
 
 def _windows(result: MCResult, select=None):
@@ -908,4 +911,4 @@ def velocity_correlation(result: MCResult, bins: np.ndarray, select=None, compon
         {"C": ("r", C, {"units": "1", "long_name": f"velocity correlation C_p ({component}), Monte Carlo"}),
          "C_se": ("r", se, {"units": "1", "long_name": "standard error of C"}),
          "pairs": ("r", pairs, {"units": "1", "long_name": "pair samples per bin"})},
-        coords={"r": ("r", rc, {"units": "d", "long_name": "separation"})})
+        coords={"r": ("r", rc, {"units": "1", "long_name": "separation, in particle diameters"})})

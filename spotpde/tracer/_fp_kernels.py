@@ -50,6 +50,12 @@ from numba.extending import overload
 # checks that a NaN survives a step).
 FASTMATH = {"contract", "reassoc", "arcp", "nsz"}
 
+# The reconstruction helpers (face_value, weno5z, ...) are ordinary njit functions, not
+# inline="always": numba-level inlining copies their typed IR into every call site and
+# doubled the first-run compilation of a kernel (about 150 s against 80 s for the WENO5
+# 2D kernel on the loaded 2-core machine), while LLVM inlines them anyway (the same
+# cells per second, within the 5-10 % noise of the measurement, benchmarks/coldstart.py).
+#
 # Compilation options of the row functions (numba overloads, compiled into the kernels).
 _ROW_JIT = {"fastmath": FASTMATH, "error_model": "numpy"}
 
@@ -57,7 +63,7 @@ _ROW_JIT = {"fastmath": FASTMATH, "error_model": "numpy"}
 UPWIND, MINMOD, VANLEER, MC, KOREN, WENO5 = 0, 1, 2, 3, 4, 6
 
 
-@njit(cache=True, inline="always", fastmath=FASTMATH, error_model="numpy")
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
 def face_value(p_uu, p_u, p_d, limiter):
     """Limited reconstruction at the face between the upwind cell and the downwind cell.
 
@@ -86,7 +92,7 @@ def face_value(p_uu, p_u, p_d, limiter):
     return p_u + (0.5 * s if dr > 0.0 else -0.5 * s)
 
 
-@njit(cache=True, inline="always", fastmath=FASTMATH, error_model="numpy")
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
 def weno5z(v1, v2, v3, v4, v5, iscale2):
     """Fifth-order WENO-Z face value at the downwind face of ``v3`` (upwind order v1..v5),
     clipped to ``[0, 2 v3]`` (the positivity bound; inactive on resolved data).
@@ -122,7 +128,7 @@ def weno5z(v1, v2, v3, v4, v5, iscale2):
     return min(max(f, 0.0), 2.0 * v3)
 
 
-@njit(cache=True, inline="always", fastmath=FASTMATH, error_model="numpy")
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
 def recon(v1, v2, v3, v4, v5, h1, h2, h5, limiter, eps):
     """Upwind face value at the face between ``v3`` (upwind cell) and ``v4``.
 
@@ -141,7 +147,7 @@ def recon(v1, v2, v3, v4, v5, h1, h2, h5, limiter, eps):
 ROWS_PER_CHUNK = 16
 
 
-@njit(cache=True, inline="always", fastmath=FASTMATH, error_model="numpy")
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
 def _xface_edge(Pk, ux, Ak, f, nx, limiter, eps, ih):
     """Flux through the x face ``f`` (between cells ``f-1`` and ``f``) of one row,
     with the boundary fallbacks of :func:`recon` (faces within ``r`` of a side)."""

@@ -1,4 +1,4 @@
-"""Tracer propagator: the Fokker-Planck equation of one particle (PHYSICS.md section 3).
+"""Tracer propagator: the Fokker-Planck equation of one particle (docs/conventions.md section 3).
 
 Solves, in Ito form with the full diffusion tensor,
 
@@ -331,18 +331,20 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
         :class:`TracerResult`.
 
     Raises:
-        CaseError: invalid fields, ``P0``, ``t_end``, ``frames`` or options.
+        ValueError: invalid ``P0``, ``t_end``, ``frames`` or options (naming the
+            argument); invalid fields (a ``CaseError``, which the pipeline reports as a
+            numerical failure of derived data).
         NumericalError: NaN, ``P < 0`` or a broken mass budget (message names the time).
     """
     problems = []
     if not (isinstance(frames, (int, np.integer)) and frames >= 2):
-        problems.append(f"tracer.frames: must be an integer >= 2, got {frames!r}")
+        problems.append(f"frames: must be an integer >= 2, got {frames!r}")
     if not (np.isfinite(t_end) and t_end > 0):
-        problems.append(f"tracer.t_end: must be > 0, got {t_end!r}")
+        problems.append(f"t_end: must be a finite number > 0, got {t_end!r}")
     if not (0 < cfl <= 1):
-        problems.append(f"tracer.cfl: must be in (0, 1], got {cfl!r}")
+        problems.append(f"cfl: must be in (0, 1], got {cfl!r}")
     if diffusion not in DIFFUSION_MODES:
-        problems.append(f"tracer.diffusion: unknown mode {diffusion!r}; valid choices: "
+        problems.append(f"diffusion: unknown mode {diffusion!r}; valid choices: "
                         f"{', '.join(DIFFUSION_MODES)}")
     try:
         lim = _advection.limiter_from_name(limiter)
@@ -354,18 +356,18 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
         problems.append(str(e))
     P = np.array(P0, dtype=float)
     if P.shape != grid.shape:
-        problems.append(f"tracer.P0: shape {P.shape} does not match the grid {grid.shape}")
+        problems.append(f"P0: shape {P.shape} does not match the grid {grid.shape}")
     elif not np.all(np.isfinite(P)) or np.any(P < 0):
-        problems.append("tracer.P0: must be finite and >= 0")
+        problems.append("P0: must be finite and >= 0")
     if outlet is None:
         outlet = np.ones(grid.shape[1:], dtype=bool)
     else:
         outlet = np.asarray(outlet, dtype=bool)
         if outlet.shape != grid.shape[1:]:
-            problems.append(f"tracer.outlet: shape {outlet.shape} does not match the floor "
+            problems.append(f"outlet: shape {outlet.shape} does not match the floor "
                             f"{grid.shape[1:]}")
     if problems:
-        raise CaseError(problems)
+        raise ValueError("; ".join(problems))
     P = np.ascontiguousarray(P)
     if threads is None:
         threads = 1 if grid.size < 65536 else numba.config.NUMBA_NUM_THREADS
@@ -549,7 +551,7 @@ def numerical_diffusion(speed: float, D: float, spacing: float, *, sigma: float 
         (relative error of the mean displacement).
     """
     if not (speed > 0 and D >= 0 and spacing > 0 and sigma > 0):
-        raise CaseError(f"numerical_diffusion: need speed > 0, D >= 0, spacing > 0, sigma > 0; "
+        raise ValueError(f"speed, D, spacing, sigma: need speed > 0, D >= 0, spacing > 0, sigma > 0; "
                         f"got speed={speed!r}, D={D!r}, spacing={spacing!r}, sigma={sigma!r}")
     if t_end is None:
         t_end = 40.0 * sigma / speed
@@ -644,10 +646,10 @@ def sde_ensemble(grid: Grid, fields: Fields, starts, t_end: float, n: int, dt: f
     dims = grid.dims
     starts = np.atleast_2d(np.asarray(starts, dtype=float))
     if starts.shape[1] != dims:
-        raise CaseError(f"sde_ensemble.starts: need {dims} columns (array order "
+        raise ValueError(f"starts: need {dims} columns (array order "
                         f"{grid.axes}), got shape {starts.shape}")
     if not (n >= 1 and dt > 0 and t_end >= 0):
-        raise CaseError(f"sde_ensemble: need n >= 1, dt > 0, t_end >= 0; got n={n!r}, "
+        raise ValueError(f"n, dt, t_end: need n >= 1, dt > 0, t_end >= 0; got n={n!r}, "
                         f"dt={dt!r}, t_end={t_end!r}")
     rng = np.random.default_rng(seed)
     pos = starts[np.arange(n) % len(starts)].copy()

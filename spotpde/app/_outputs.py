@@ -1,0 +1,135 @@
+"""Checks on output paths, made before any computing, and signals that stop a run.
+
+Every command that writes a file (``run``, ``plot``, ``sweep``, ``compare``) and
+``spotpde.run(case, path=...)`` check their output paths here first, so that a run never
+computes for minutes and then fails to write, and never destroys data:
+
+* the directory exists, and a file can be created in it under the name of the hidden
+  temporary sibling that the atomic write uses (``.NAME.XXXXXXXX.tmp``): this catches a
+  read-only directory, a full inode table, and a name too long for that sibling;
+* an existing target is a regular file (a directory, device node, FIFO or socket is
+  never replaced);
+* the target is not one of the command's inputs (``run c.toml -o c.toml``) nor another
+  of its outputs (``run ... -o r.png --plot``), compared by
+  :func:`os.path.samefile` when both exist and by :func:`os.path.realpath` otherwise;
+* a figure has an extension matplotlib can write (:data:`FIGURE_FORMATS`).
+
+:func:`output_problem` returns the problem as text (no key); callers prefix the key
+(``output.path``, ``--plot``) or the Python argument (``path``).
+
+:func:`handle_termination` makes SIGTERM and SIGHUP behave like Ctrl-C: they raise
+:class:`Terminated` (a :class:`KeyboardInterrupt`), so the same clean-up runs (the
+temporary file of an atomic write is removed) and the command exits with status
+128 + the signal number.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import stat
+import tempfile
+from collections.abc import Iterable
+from pathlib import Path
+
+#: Extensions of the figures matplotlib's Agg, PDF, PS and SVG backends write.
+FIGURE_FORMATS = ("png", "pdf", "svg", "svgz", "eps", "ps", "jpg", "jpeg", "tif", "tiff",
+                  "webp")
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP received; ``signum`` is the signal number."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = int(signum)
+
+
+def _raise_terminated(signum, frame):  # noqa: ARG001 - signal handler signature
+    raise Terminated(signum)
+
+
+def handle_termination() -> None:
+    """Install handlers raising :class:`Terminated` for SIGTERM and SIGHUP (main thread
+    only; signals another program ignores stay ignored)."""
+    for name in ("SIGTERM", "SIGHUP"):
+        sig = getattr(signal, name, None)
+        if sig is None:
+            continue
+        try:
+            if signal.getsignal(sig) == signal.SIG_IGN:   # e.g. under nohup
+                continue
+            signal.signal(sig, _raise_terminated)
+        except ValueError:   # not the main thread
+            return
+
+
+def resolve(path: str | os.PathLike) -> Path:
+    """``path`` made absolute (``~`` expanded), without resolving symbolic links."""
+    return Path(os.path.abspath(os.path.expanduser(os.fspath(path))))
+
+
+def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """True when ``a`` and ``b`` name the same file (hard links and symbolic links
+    included; by real path when one of them does not exist yet)."""
+    a, b = resolve(a), resolve(b)
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return os.path.realpath(a) == os.path.realpath(b)
+
+
+def output_problem(path: str | os.PathLike, *, inputs: Iterable = (), others: Iterable = (),
+                   formats: Iterable[str] | None = None) -> str | None:
+    """What stops ``path`` from being written as an output, or ``None``.
+
+    Args:
+        path: the output file.
+        inputs: the command's input files (a path equal to one of them is refused).
+        others: ``(what, path)`` pairs of the command's other outputs.
+        formats: allowed extensions without the dot (``None``: any).
+
+    Returns:
+        A message such as ``"the directory /x does not exist, got 'r.nc'"``, or ``None``.
+    """
+    shown = os.fspath(path)
+    target = resolve(path)
+    for source in inputs:
+        if source is not None and same_file(target, source):
+            return (f"is the input file {os.fspath(source)} of this command; writing there "
+                    f"would destroy it, got {shown!r}")
+    for what, other in others:
+        if other is not None and same_file(target, other):
+            return f"is also the {what} of this command; give them different names, got {shown!r}"
+    if formats is not None:
+        formats = tuple(formats)
+        ext = target.suffix.lower().lstrip(".")
+        if ext not in formats:
+            return (f"unsupported format {target.suffix or '(no extension)'!r}; use one of "
+                    + ", ".join("." + f for f in formats) + f", got {shown!r}")
+    try:
+        st = os.stat(target)
+    except FileNotFoundError:
+        st = None
+    except OSError as exc:
+        return f"cannot use {target}: {exc.strerror or exc}, got {shown!r}"
+    if st is not None:
+        if stat.S_ISDIR(st.st_mode):
+            return f"is a directory; give a file name, got {shown!r}"
+        if not stat.S_ISREG(st.st_mode):
+            return (f"exists and is not a regular file (a device, FIFO or socket); refusing "
+                    f"to replace it, got {shown!r}")
+    parent = target.parent
+    if not parent.is_dir():
+        return f"the directory {parent} does not exist, got {shown!r}"
+    try:
+        fd, probe = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=parent)
+    except OSError as exc:
+        why = exc.strerror or str(exc)
+        return f"cannot write in {parent} ({why}), got {shown!r}"
+    os.close(fd)
+    try:
+        os.unlink(probe)
+    except OSError:
+        pass
+    return None
