@@ -31,7 +31,7 @@ from typing import Mapping
 import numpy as np
 import xarray as xr
 
-from .errors import WriteError
+from ..errors import WriteError
 
 UNITS_NOTE = ("every quantity is dimensionless (units '1'): lengths in particle diameters d, "
               "times in the case's time unit (spots.drift is in d per time unit); "
@@ -90,7 +90,7 @@ def cf_attrs(case=None, *, history: bool = True) -> dict[str, str]:
     """
     import datetime
 
-    from ._version import __version__
+    from .._version import __version__
 
     now = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
     origin = getattr(case, "source", None)

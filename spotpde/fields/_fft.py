@@ -64,7 +64,7 @@ def threads() -> int:
 
 def cache_dir() -> Path:
     """The spotpde user cache directory (not created here): see :mod:`spotpde._cache`."""
-    from ._cache import user_cache_dir
+    from .._cache import user_cache_dir
 
     return user_cache_dir()
 
