@@ -234,7 +234,7 @@ def test_numba_cache_is_never_written_into_the_package(tmp_path):
     env = dict(os.environ, PYTHONPATH=str(ROOT), HOME=str(tmp_path), XDG_CACHE_HOME="")
     env.pop("NUMBA_CACHE_DIR", None)
     env.pop("SPOTPDE_CACHE_DIR", None)
-    code = ("import os, spotpde, numba; from spotpde import _marching; "
+    code = ("import os, spotpde, numba; from spotpde.density import _marching; "
             "print(os.environ['NUMBA_CACHE_DIR']); print(numba.config.CACHE_DIR)")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
                          text=True, check=True, timeout=300).stdout.split()
