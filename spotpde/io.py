@@ -68,6 +68,10 @@ def variable_attrs(name: str, dims: int) -> dict[str, str]:
         return {"units": f"d-{dims - 1}",
                 "long_name": "geometrical propagator: density of where the tracer crosses "
                              "each height (time-integrated downward probability flux)"}
+    if name == "residence":
+        return {"units": f"t d-{dims}",
+                "long_name": "residence density: expected time the tracer spends per unit "
+                             "volume (time integral of P to infinity)"}
     if name == "mass":
         return {"units": "1", "long_name": "tracer probability inside the domain"}
     if name == "outflow":

@@ -26,6 +26,7 @@ The Dataset has the CONTRACT.md variables and global attributes ``V1``, ``V2``, 
 from __future__ import annotations
 
 import importlib
+import math
 import os
 from typing import Callable
 
@@ -72,7 +73,7 @@ def run(case: Case | str, progress: Progress | None = None, *,
     try:
         if path is None:
             return _run(case, progress)
-        if case.tracer is None:
+        if case.tracer is None or math.isinf(case.tracer.t_end):   # no P frames to stream
             ds = _run(case, progress)
             write_netcdf(ds, path)
             return ds
@@ -126,11 +127,24 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
 
     out = {"rho_s": rho_s, "v_kin": v_kin, **fields}
     times = None
+    steady_attrs = {}
     if case.tracer is not None:
         tracer = importlib.import_module("spotpde.tracer")
         P0 = initial_density(grid, case.tracer.start)
         coefficients = (fields if snapshots is None else
                         SnapshotFields(snap_times, snapshots, lambda r: particle_fields(case, r)))
+    if case.tracer is not None and math.isinf(case.tracer.t_end):
+        # t_end = inf: the geometrical propagator by one steady solve (docs/steady.md)
+        stage = _stage(progress, "tracer") or _noop
+        stage(0.0)
+        res = tracer.solve_steady(grid, coefficients, P0)
+        stage(1.0)
+        out.update(P_height=res.P_height, residence=res.residence)
+        steady_attrs = {f"exit_{k}": float(v) for k, v in res.exit.items()}
+        steady_attrs.update(mean_exit_time=float(res.mean_exit_time),
+                            steady_scheme=res.options["scheme"],
+                            steady_residual=float(res.residual))
+    elif case.tracer is not None:
         res = tracer.solve(grid, coefficients, P0, case.tracer.t_end, case.tracer.frames,
                            progress=_stage(progress, "tracer"), on_frame=on_frame,
                            **case.tracer_options)
@@ -151,6 +165,7 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
         "spotpde_version": __version__,
         "case": case.to_toml(),
     }
+    attrs.update(steady_attrs)
     if case.source is not None:
         attrs["case_file"] = str(case.source)
     return make_dataset(grid, out, times=times, attrs=attrs)

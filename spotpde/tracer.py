@@ -48,6 +48,8 @@ from . import _advection, _diffusion, _timestepping
 from . import _fp_kernels as K
 from .errors import CaseError, NumericalError
 from .grid import DIFFUSIVITY_KEYS, DRIFT_KEYS, Grid
+from ._steady import SteadyResult  # noqa: F401  (t_end = inf: docs/steady.md)
+from ._steady import solve_steady_public as solve_steady  # noqa: F401
 
 Fields = Union[Mapping[str, np.ndarray], Callable[[float], Mapping[str, np.ndarray]]]
 
