@@ -246,14 +246,14 @@ def solve_steady(grid, f, P0, outlet, *, scheme="hybrid", permc_spec="MMD_AT_PLU
     down = -Fz
     ex = asm.exits(G)
     ex["trapped"] = trapped
-    theta = np.concatenate([a["theta"].ravel() for a in asm.axes])
     return SteadyResult(
         residence=G, P_height=0.5 * (down[:-1] + down[1:]), P_height_faces=down, exit=ex,
         mean_exit_time=float(g_full.sum()) * hv / max(mass0, 1e-300), mass0=mass0,
         residual=residual, seconds=time.perf_counter() - t0,
         options={"scheme": scheme, "linear_solver": f"splu({permc_spec})",
                  "cells_solved": int(keep.sum()), "cells_trapped": int(traps.sum()),
-                 "n_bad": n_bad, "central_fraction": float(np.mean(theta >= 1.0)),
+                 "n_bad": n_bad, "central_fraction": {a["name"]: float(np.mean(a["theta"] >= 1.0))
+                                      for a in asm.axes},
                  "min_before_clip": g_min, "seconds_assembly": t1 - t0,
                  "seconds_solve": t2 - t1})
 
