@@ -220,6 +220,7 @@ def test_case_validation():
     assert any(p.startswith("tracer.t_end: inf") for p in err.value.problems)
 
 
+@pytest.mark.slow   # ~30 s: the whole pipeline, netCDF and the plots
 def test_pipeline_writes_steady_variables(tmp_path):
     path = tmp_path / "steady.nc"
     ds = spotpde.run(load_case(_case()), path=path)
