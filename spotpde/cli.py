@@ -86,7 +86,20 @@ def cmd_check(args) -> int:
     g = case.grid
     cells = " x ".join(str(n) for n in g.shape)
     _say(f"spotpde: {args.case} is valid ({g.dims}D, {cells} cells, model {case.model})")
+    _estimate(case, getattr(args, "allow_long", False))
     return EXIT_OK
+
+
+def _estimate(case, allow_long: bool) -> None:
+    """Print the tracer run-time estimate; refuse (CaseError) a run over a day."""
+    from . import estimate
+    try:
+        est = estimate.case_estimate(case)
+    except Exception:      # the run itself reports what is wrong with the fields
+        est = None
+    if est is not None:
+        _say(f"spotpde: {estimate.describe(est)}")
+    estimate.refuse_if_long(case, est, allow_long)
 
 
 def cmd_run(args) -> int:
@@ -106,6 +119,7 @@ def cmd_run(args) -> int:
         fig = Path(args.plot) if args.plot else out.with_suffix(".png")
         if not fig.parent.resolve().is_dir():
             raise CaseError(f"--plot: the directory {fig.parent} does not exist")
+    _estimate(case, args.allow_long)
     progress = None if args.quiet else Progress()
     t0 = time.monotonic()
     try:
@@ -188,9 +202,13 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--plot", nargs="?", const="", default=None, metavar="FIG.png",
                    help="also write the standard figure (default: OUT.png next to OUT.nc)")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    r.add_argument("--allow-long", action="store_true",
+                   help="start a tracer run estimated at more than a day")
     r.set_defaults(func=cmd_run)
     c = sub.add_parser("check", help="validate a case without running it")
     c.add_argument("case", metavar="CASE.toml")
+    c.add_argument("--allow-long", action="store_true",
+                   help="accept a tracer run estimated at more than a day")
     c.set_defaults(func=cmd_check)
     f = sub.add_parser("plot", help="the standard figure of a result file")
     f.add_argument("result", metavar="OUT.nc")
