@@ -15,7 +15,9 @@ Prints, measured in the same run:
   steps per unit time);
 * the ratio, and what the cut-off run leaves undone (mass still inside).
 
-Run: ``python benchmarks/steady.py [--repeat 3] [--t-cut 100] [--nx 280]``.
+Run: ``python benchmarks/steady.py [--repeat 3] [--t-cut 100] [--nx 280]``;
+``--flagship`` prints instead the numerical diffusion of the steady schemes in the spot
+model (variance of ``P_height`` against a drained time-stepped WENO5 run).
 """
 
 from __future__ import annotations
@@ -42,13 +44,52 @@ def void_case(nx: int, nz: int, h: float = 0.25):
                    "t_end": float("inf")}})
 
 
+def flagship():
+    """Numerical diffusion of the steady schemes in the spot model (cell Peclet ~100):
+    variance of P_height over x against a drained time-stepped WENO5 run."""
+    import pathlib
+    import tomllib
+    path = pathlib.Path(__file__).resolve().parent.parent / "cases" / "quasi2d_layers.toml"
+    raw = tomllib.loads(path.read_text())
+    raw["tracer"].pop("layers")
+    raw["tracer"].update(start={"x": 1.0, "z": 20.0, "width": 1.0}, t_end=1500.0, frames=2)
+    case = load_case(raw)
+    grid = case.grid
+    rho = clip_roundoff(spot_density.solve(grid, case.orifice, case.spots))
+    f = pipeline.particle_fields(case, rho)
+    P0 = pipeline.initial_density(grid, case.tracer.start)
+    t0 = time.perf_counter()
+    tw = tracer.solve(grid, f, P0, 1500.0, 2)
+    t_w = time.perf_counter() - t0
+    runs = [tw, tracer.solve_steady(grid, f, P0), tracer.solve_steady(grid, f, P0,
+                                                                       scheme="upwind")]
+    print(f"flagship, blob at (1, 20): stepped WENO5 {t_w:.1f} s ({tw.steps} steps, mass "
+          f"left {tw.mass[-1]:.2g}); steady hybrid {runs[1].seconds:.2f} s")
+    h, x = grid.spacing, grid.x
+    for z in (2.0, 5.0, 10.0, 15.0):
+        k = int(np.argmin(np.abs(grid.z - z)))
+        mv = []
+        for r in runs:
+            ph = r.P_height[k]
+            c = ph.sum() * h
+            m = (ph * x).sum() * h / c
+            mv.append((m, (ph * x * x).sum() * h / c - m * m))
+        print(f"z = {grid.z[k]:5.2f}: var WENO5 {mv[0][1]:.4f}, hybrid {mv[1][1] / mv[0][1] - 1:+.3f},"
+              f" upwind {mv[2][1] / mv[0][1] - 1:+.3f} (relative); means "
+              f"{mv[0][0]:.4f} {mv[1][0]:.4f} {mv[2][0]:.4f}")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--t-cut", type=float, default=100.0)
     ap.add_argument("--nx", type=int, default=280)
     ap.add_argument("--nz", type=int, default=320)
+    ap.add_argument("--flagship", action="store_true",
+                    help="instead: numerical diffusion of the steady schemes, spot model")
     args = ap.parse_args()
+    if args.flagship:
+        return flagship()
     case = void_case(args.nx, args.nz)
     grid = case.grid
     rho = clip_roundoff(spot_density.solve(grid, case.orifice, case.spots))

@@ -103,6 +103,7 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
                                    progress=_stage(progress, "spot density"))
     rho_s = _check_shape(np.asarray(rho_s, dtype=float), grid)
     _check_finite("rho_s", rho_s)
+    rho_raw = rho_s
     rho_s = clip_roundoff(rho_s)
 
     stage = _stage(progress, "particle fields") or _noop
@@ -122,7 +123,13 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
     kinematic = importlib.import_module("spotpde.kinematic")
     b = float(np.mean(spots.b))
     q0 = orifice.rate_at(spots.t_end if spots.mode == "transient" else 0.0)
-    v_kin = np.asarray(kinematic.speed(grid, orifice, b), dtype=float) * V1 * q0
+    if (spots.mode == "steady" and snapshots is None and np.ndim(spots.b) == 0
+            and np.ndim(spots.b_par) == 0 and float(spots.b_par) == 0.0):
+        # uniform b, b_par = 0: the kinematic equation dv/dz = b lap_perp v is the spot
+        # flux's (v_s rho_s), the same solve from the same floor profile: scale it
+        v_kin = V1 * np.asarray(spots.drift, dtype=float) * rho_raw
+    else:
+        v_kin = np.asarray(kinematic.speed(grid, orifice, b), dtype=float) * V1 * q0
     stage(1.0)
 
     out = {"rho_s": rho_s, "v_kin": v_kin, **fields}
