@@ -99,6 +99,8 @@ def _estimate(case, allow_long: bool) -> None:
         est = None
     if est is not None:
         _say(f"spotpde: {estimate.describe(est)}")
+    elif case.tracer is not None and case.tracer.t_end == float("inf"):
+        _say("spotpde: tracer: t_end = inf: the geometrical propagator by one sparse solve")
     estimate.refuse_if_long(case, est, allow_long)
 
 
