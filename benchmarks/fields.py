@@ -105,6 +105,35 @@ def scipy_fields(grid, orifice, spots, kernel, rule):
             **scipy_particle_fields(grid, rho_s, spots, kernel, rule)}
 
 
+def lean_fields(grid, orifice, spots, kernel, rule):
+    """The lean SciPy reference of issue 16: one Crank-Nicolson march (v_kin is the same
+    profile as v_s rho_s for uniform b and b_par = 0), then one fftconvolve per non-zero
+    field (D_zz and D_xz vanish for b_par = 0)."""
+    h, b, v_s, Q0 = grid.spacing, float(spots.b), float(spots.drift), orifice.rate_at(0.0)
+    phi = cn_march(Q0 * source_profile(grid, orifice), b, h, grid.nz)
+    rho_s = phi / v_s
+    w1, w2 = kernel.sample(h, 1), kernel.sample(h, 2)
+    hd = h**2
+    div_x = np.gradient(b * v_s * rho_s, h, axis=1, edge_order=2)
+    return {"rho_s": rho_s, "v_kin": kernel.V1 * phi,
+            "u_x": hd * fftconvolve(2 * rule * div_x, w1, mode="same"),
+            "u_z": hd * fftconvolve(-v_s * rho_s, w1, mode="same"),
+            "D_xx": hd * fftconvolve(b * v_s * rho_s, w2, mode="same"),
+            "D_xz": np.zeros(grid.shape), "D_zz": np.zeros(grid.shape)}
+
+
+def spotpde_run_case(n: int):
+    """The same case as a spotpde case (for ``spotpde.run``)."""
+    from spotpde.app.cases import load_case
+    h = 1.0 / 8.0
+    half = n * h / 2
+    return load_case({"domain": {"x": [-half, half], "z": [0.0, n * h], "spacing": h},
+                      "orifice": {"width": 4.0, "rate": 1.0},
+                      "spots": {"drift": 1.0, "b": 1.3},
+                      "kernel": {"shape": "uniform", "size": 2.5, "height": 0.0024,
+                                 "rule": 0.5}})
+
+
 def scipy_particle_fields(grid, rho_s, spots, kernel, rule):
     """u_p, D_p by fftconvolve per field; div by np.gradient (second order at the edges)."""
     h, b, v_s = grid.spacing, float(spots.b), float(spots.drift)
@@ -136,6 +165,17 @@ def main():
     print(f"scipy reference : {t_ref:8.3f} s")
     print(f"spotpde         : {t_new:8.3f} s")
     print(f"ratio spotpde / scipy = {t_new / t_ref:.3f}  (target <= 0.5)")
+    # issue 16: spotpde.run (the whole pipeline, Dataset included) against the lean
+    # reference, timed interleaved in the same run
+    import spotpde
+    from _timing import best_times
+    run_case = spotpde_run_case(args.n)
+    t_lean, t_run = best_times([lambda: lean_fields(*parts), lambda: spotpde.run(run_case)],
+                               args.repeat)
+    print(f"lean scipy      : {t_lean:8.3f} s   (one Crank-Nicolson march, fftconvolve per "
+          f"non-zero field)")
+    print(f"spotpde.run     : {t_run:8.3f} s")
+    print(f"ratio spotpde.run / lean = {t_run / t_lean:.3f}  (issue 16 target <= 0.3)")
     above = grid.z >= 4.0
     print("agreement: max |spotpde - scipy| / max |scipy|   (z >= 4 d)   (all cells)")
     for name in ("rho_s", "v_kin", "u_x", "u_z", "D_xx", "D_xz", "D_zz"):

@@ -24,6 +24,7 @@ from _timing import best_time
 
 from spotpde.tracer import _fp_kernels as K
 from spotpde import tracer
+from spotpde.tracer import _solve
 from spotpde.tracer._timestepping import SSPRK3
 from spotpde.grid import Grid
 
@@ -55,7 +56,7 @@ def main():
           f"{'rhs/lap1':>9} {'step/lap1':>10}")
     for n in args.sizes:
         grid = Grid(2, (-n / 8, n / 8), (0.0, n / 4), 0.25)
-        f = tracer._check_fields(grid, fields_for(grid), "fields")
+        f = _solve._check_fields(grid, fields_for(grid), "fields")
         Z, X = grid.mesh()
         # structure in every cell (so no early exits of the limiters in flat zero regions)
         P = np.exp(-((Z - n / 8) ** 2 + X**2) / 50.0) + 0.1 * (1.2 + np.sin(0.7 * X) * np.sin(0.3 * Z))
@@ -66,12 +67,12 @@ def main():
             numba.set_num_threads(threads)
             t_lap1 = best_time(lambda: K.laplacian_5pt_serial(P, out), args.repeat, clock)[0]
             for name, code in (("koren", K.KOREN), ("weno5", K.WENO5)):
-                op = tracer._Operator(grid, f, code, np.ones(n, bool), implicit=False)
-                ws = tracer._Workspace(grid)
-                t_rhs = best_time(lambda: tracer._rhs(op, P, ws, 0.0), args.repeat, clock)[0]
+                op = _solve._Operator(grid, f, code, np.ones(n, bool), implicit=False)
+                ws = _solve._Workspace(grid)
+                t_rhs = best_time(lambda: _solve._rhs(op, P, ws, 0.0), args.repeat, clock)[0]
                 budget = [0.0, 0.0, 0.0]
                 Pw = P.copy()
-                t_step = best_time(lambda: tracer._rk_step([op] * 3, Pw, 1e-6, SSPRK3, ws, budget),
+                t_step = best_time(lambda: _solve._rk_step([op] * 3, Pw, 1e-6, SSPRK3, ws, budget),
                                    args.repeat, clock)[0]
                 print(f"{n:>5} {threads:>3} {name:>7} {N / t_lap1 / 1e6:10.0f} {N / t_rhs / 1e6:9.0f} "
                       f"{N / t_step / 1e6:10.0f} {t_rhs / t_lap1:9.1f} {t_step / t_lap1:10.1f}")

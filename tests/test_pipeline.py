@@ -124,8 +124,8 @@ def test_run_builds_the_contract_dataset(fakes, dims):
     assert ds.attrs["spotpde_version"] == spotpde.__version__
     assert load_case(tomllib.loads(ds.attrs["case"])).data == case.data
     names = [c[0] for c in fakes]
-    assert names == ["spot_density.solve", "coefficients.particle_fields",
-                     "kinematic.speed", "tracer.solve"]
+    # uniform b, b_par = 0: v_kin is v_s rho_s scaled, no second solve (kinematic.speed)
+    assert names == ["spot_density.solve", "coefficients.particle_fields", "tracer.solve"]
     assert fakes[-1][1:3] == (2.0, 4)
     assert fakes[-1][3] == pytest.approx(1.0)       # P0 normalised
     assert fakes[-1][4] == {"limiter": "weno5", "cfl": 0.9, "diffusion": "auto"}

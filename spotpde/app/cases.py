@@ -396,6 +396,11 @@ def _estimate(data: Mapping, frames_in_memory: bool = True, *, pad: bool = True,
     if tracer is not None:
         # frames (one in flight when streamed), P_height, scheme fluxes and stages
         n_tracer = (tracer["frames"] if frames_in_memory and frames else 1) + 1 + 16
+        if tracer["t_end"] == math.inf:
+            # steady solve: no frames; the sparse matrix and its LU factors (fill
+            # measured: ~50 entries of 12 bytes per cell on a 2D grid of 9e4 cells; 3D
+            # fill grows like cells**(1/3))
+            n_tracer = 4 + (80 if dims == 2 else 10 * cells ** (1 / 3))
         if data["spots"]["mode"] == "transient":
             # spot-density snapshots (one more in flight), the fields of three of them,
             # and the tracer's cache of operators (face velocities, diffusion splitting,
@@ -681,7 +686,8 @@ class _Validator:
     def _tracer(self, t):
         out = {
             "model": self.choice("tracer.model", t["model"], TRACER_MODELS),
-            "t_end": self.number("tracer.t_end", t["t_end"], gt=0, limit=1e9),
+            "t_end": (math.inf if _is_number(t["t_end"]) and float(t["t_end"]) == math.inf
+                      else self.number("tracer.t_end", t["t_end"], gt=0, limit=1e9)),
             "frames": self.number("tracer.frames", t["frames"], integer=True, ge=2,
                                   le=MAX_FRAMES),
             "limiter": self.choice("tracer.limiter", t["limiter"], LIMITERS),
@@ -841,6 +847,9 @@ class _Validator:
                          'inside the disk/sphere); give kernel.volume instead', k["height"])
         # tracer
         t = data.get("tracer")
+        if t is not None and t.get("t_end") == math.inf and s["mode"] == "transient":
+            self.bad("tracer.t_end", 'inf (the steady propagator) needs spots.mode = '
+                     '"steady"; give a finite time for a tracer in a starting flow', math.inf)
         if t is not None and t.get("snapshots", "auto") != "auto" and s["mode"] != "transient":
             self.bad("tracer.snapshots", 'is only used when spots.mode = "transient"; '
                      'remove it or set it to "auto"', t["snapshots"])

@@ -90,7 +90,22 @@ def cmd_check(args) -> int:
     g = case.grid
     cells = " x ".join(str(n) for n in g.shape)
     _say(f"spotpde: {args.case} is valid ({g.dims}D, {cells} cells, model {case.model})")
+    _estimate(case, getattr(args, "allow_long", False))
     return EXIT_OK
+
+
+def _estimate(case, allow_long: bool) -> None:
+    """Print the tracer run-time estimate; refuse (CaseError) a run over a day."""
+    from . import estimate
+    try:
+        est = estimate.case_estimate(case)
+    except Exception:      # the run itself reports what is wrong with the fields
+        est = None
+    if est is not None:
+        _say(f"spotpde: {estimate.describe(est)}")
+    elif case.tracer is not None and case.tracer.t_end == float("inf"):
+        _say("spotpde: tracer: t_end = inf: the geometrical propagator by one sparse solve")
+    estimate.refuse_if_long(case, est, allow_long)
 
 
 def cmd_run(args) -> int:
@@ -107,6 +122,7 @@ def cmd_run(args) -> int:
         fig = Path(args.plot) if args.plot else out.with_suffix(".png")
     _check_outputs([("output.path", out, None), ("--plot", fig, FIGURE_FORMATS)],
                    inputs=[args.case])
+    _estimate(case, args.allow_long)
     progress = None if args.quiet else Progress()
     t0 = time.monotonic()
     try:
@@ -224,9 +240,13 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--plot", nargs="?", const="", default=None, metavar="FIG.png",
                    help="also write the standard figure (default: OUT.png next to OUT.nc)")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    r.add_argument("--allow-long", action="store_true",
+                   help="start a tracer run estimated at more than a day")
     r.set_defaults(func=cmd_run)
     c = sub.add_parser("check", help="validate a case without running it")
     c.add_argument("case", metavar="CASE.toml")
+    c.add_argument("--allow-long", action="store_true",
+                   help="accept a tracer run estimated at more than a day")
     c.set_defaults(func=cmd_check)
     f = sub.add_parser("plot", help="the standard figure of a result file")
     f.add_argument("result", metavar="OUT.nc")

@@ -137,14 +137,18 @@ def variable_attrs(name: str, dims: int) -> dict[str, str]:
         return cf_units(f"d-{dims - 1}",
                         "geometrical propagator: density of where the tracer crosses "
                         "each height (time-integrated downward probability flux)")
+    if name == "residence":
+        return cf_units(f"t d-{dims}",
+                        "residence density: expected time the tracer spends per unit "
+                        "volume (time integral of P to infinity)")
     if name == "mass":
         return cf_units("1", "tracer probability inside the domain")
     if name == "outflow":
         return cf_units("1", "tracer probability that has left through the orifice "
                         "(and through open side walls, where the walls are open)")
     raise KeyError(f"{name!r} is not a spotpde result variable; valid: rho_s, v_kin, "
-                   "u_x, u_y, u_z, D_xx, D_yy, D_zz, D_xy, D_xz, D_yz, P, P_height, mass, "
-                   "outflow")
+                   "u_x, u_y, u_z, D_xx, D_yy, D_zz, D_xy, D_xz, D_yz, P, P_height, residence, "
+                   "mass, outflow")
 
 
 def make_dataset(

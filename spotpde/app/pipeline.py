@@ -26,6 +26,7 @@ The Dataset has the public variables (docs/interface.md) and global attributes `
 from __future__ import annotations
 
 import importlib
+import math
 import os
 from typing import Callable
 
@@ -81,7 +82,7 @@ def run(case: Case | str, progress: Progress | None = None, *,
     try:
         if path is None:
             return _run(case, progress)
-        if case.tracer is None:
+        if case.tracer is None or math.isinf(case.tracer.t_end):   # no P frames to stream
             ds = _run(case, progress)
             write_netcdf(ds, path)
             return ds
@@ -117,6 +118,7 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
                                    progress=_stage(progress, "spot density"))
     rho_s = _check_shape(np.asarray(rho_s, dtype=float), grid)
     _check_finite("rho_s", rho_s)
+    rho_raw = rho_s
     rho_s = clip_roundoff(rho_s)
 
     stage = _stage(progress, "particle fields") or _noop
@@ -136,16 +138,35 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
     kinematic = importlib.import_module("spotpde.density.kinematic")
     b = float(np.mean(spots.b))
     q0 = orifice.rate_at(spots.t_end if spots.mode == "transient" else 0.0)
-    v_kin = np.asarray(kinematic.speed(grid, orifice, b), dtype=float) * V1 * q0
+    if (spots.mode == "steady" and snapshots is None and np.ndim(spots.b) == 0
+            and np.ndim(spots.b_par) == 0 and float(spots.b_par) == 0.0):
+        # uniform b, b_par = 0: the kinematic equation dv/dz = b lap_perp v is the spot
+        # flux's (v_s rho_s), the same solve from the same floor profile: scale it
+        v_kin = V1 * np.asarray(spots.drift, dtype=float) * rho_raw
+    else:
+        v_kin = np.asarray(kinematic.speed(grid, orifice, b), dtype=float) * V1 * q0
     stage(1.0)
 
     out = {"rho_s": rho_s, "v_kin": v_kin, **fields}
     times = None
+    steady_attrs = {}
     if case.tracer is not None:
         tracer = importlib.import_module("spotpde.tracer")
         P0 = initial_density(grid, case.tracer.start)
         coefficients = (fields if snapshots is None else
                         SnapshotFields(snap_times, snapshots, lambda r: particle_fields(case, r)))
+    if case.tracer is not None and math.isinf(case.tracer.t_end):
+        # t_end = inf: the geometrical propagator by one steady solve (docs/steady.md)
+        stage = _stage(progress, "tracer") or _noop
+        stage(0.0)
+        res = tracer.solve_steady(grid, coefficients, P0)
+        stage(1.0)
+        out.update(P_height=res.P_height, residence=res.residence)
+        steady_attrs = {f"exit_{k}": float(v) for k, v in res.exit.items()}
+        steady_attrs.update(mean_exit_time=float(res.mean_exit_time),
+                            steady_scheme=res.options["scheme"],
+                            steady_residual=float(res.residual))
+    elif case.tracer is not None:
         res = tracer.solve(grid, coefficients, P0, case.tracer.t_end, case.tracer.frames,
                            progress=_stage(progress, "tracer"), on_frame=on_frame,
                            **case.tracer_options)
@@ -167,6 +188,7 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
         "spotpde_version": __version__,
         "case": case.to_toml(),
     }
+    attrs.update(steady_attrs)
     if case.source is not None:
         attrs["case_file"] = str(case.source)
     attrs.update(cf_attrs(case))   # Conventions, history, source, references, scales

@@ -5,11 +5,14 @@
 :func:`solve` steps it in time (finite volumes, WENO5-Z / MUSCL advection, positive
 tensor diffusion, SSP Runge-Kutta); :func:`numerical_diffusion` predicts the scheme's
 numerical diffusion and :func:`sde_ensemble` is the grid-free Euler-Maruyama reference.
+:func:`solve_steady` gives the time integral of ``P`` to infinity by one sparse solve
+(the geometrical propagator for ``tracer.t_end = inf``, docs/steady.md).
 Schemes and their properties: docs/tracer.md.
 """
 
 from ._solve import (DIFFUSION_MODES, TracerResult, numerical_diffusion, required_fields,
                      sde_ensemble, solve)
+from ._steady import SteadyResult, solve_steady_public as solve_steady
 
 __all__ = ["DIFFUSION_MODES", "TracerResult", "numerical_diffusion", "required_fields",
-           "sde_ensemble", "solve"]
+           "sde_ensemble", "solve", "solve_steady", "SteadyResult"]

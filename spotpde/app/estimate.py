@@ -1,0 +1,135 @@
+"""Run-time estimate of a tracer run, before it starts (issue 16, docs/steady.md).
+
+The time-stepped tracer (:func:`spotpde.tracer.solve`) takes equal steps
+``dt = cfl / max_c a_c`` per frame interval, ``a_c`` the per-cell positivity rate
+(advection, plus explicit diffusion unless the diffusion is implicit), so the number of
+steps is known from the coefficient fields before the first step:
+
+    steps = (frames - 1) * ceil((t_end / (frames - 1)) * max a / cfl)
+
+and the wall time is ``steps * cells / R`` with ``R`` the measured cell-update rate of
+one SSP-RK3 step (three right-hand sides) on this machine, plus, with implicit
+diffusion, two sparse backward-Euler solves per step. The rates below are conservative
+(one thread; measured on the 2-core development machine, benchmarks/tracer.py and
+benchmarks/steady.py):
+
+* ``weno5``: 2.0e7 cell-steps per second; the other reconstructions 3.0e7;
+* implicit diffusion: 8e6 cell-steps per second for the two LU solves and flux products
+  (void-model propagator, 8.96e4 cells: 16 ms a step in all with one thread at a load
+  average of 3, of which about 5 ms are the SSP-RK3 advection).
+
+A run estimated at more than :data:`MAX_SECONDS` (a day) is refused unless asked for
+(``spotpde run --allow-long``); ``tracer.t_end = inf`` needs no estimate (one solve).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import CaseError
+
+#: Cell updates per second of one SSP-RK3 step, by reconstruction (one thread).
+STEP_RATE = {"weno5": 2.0e7}
+STEP_RATE_DEFAULT = 3.0e7
+#: Cell updates per second of the two backward-Euler solves of a step (implicit diffusion).
+IMPLICIT_RATE = 8.0e6
+#: Longest run started without ``--allow-long``: one day.
+MAX_SECONDS = 86400.0
+
+
+def tracer_steps(grid, fields, t_end: float, frames: int, *, limiter: str = "weno5",
+                 cfl: float = 0.9, diffusion: str = "auto") -> dict:
+    """Steps and wall time of ``tracer.solve`` with steady ``fields``, before running it.
+
+    Args:
+        grid: the grid.
+        fields: steady coefficient fields (dict), as for :func:`spotpde.tracer.solve`.
+        t_end: duration (time units), finite and > 0.
+        frames: output frames (>= 2).
+        limiter, cfl, diffusion: the solver's options.
+
+    Returns:
+        dict: ``steps``, ``dt`` (time units), ``seconds`` (estimated wall time),
+        ``implicit`` (bool), ``rate`` (``max a``, 1/time), ``cells``.
+
+    Raises:
+        ValueError: ``t_end``, ``frames`` or ``cfl`` out of range.
+    """
+    from ..tracer import _advection
+    from ..tracer._solve import _check_fields, _Operator
+    if not (math.isfinite(t_end) and t_end > 0):
+        raise ValueError(f"t_end: must be finite and > 0, got {t_end!r}")
+    if not (isinstance(frames, (int, np.integer)) and frames >= 2):
+        raise ValueError(f"frames: must be an integer >= 2, got {frames!r}")
+    if not (0 < cfl <= 1):
+        raise ValueError(f"cfl: must be in (0, 1], got {cfl!r}")
+    f = _check_fields(grid, fields, "fields")
+    lim = _advection.limiter_from_name(limiter)
+    op = _Operator(grid, f, lim.code, np.ones(grid.shape[1:], dtype=bool), implicit=False)
+    if diffusion == "auto":
+        implicit = op.rate_explicit > 2.0 * op.rate_adv and op.rate_diff > 0
+    else:
+        implicit = diffusion == "implicit"
+    rate = op.rate_adv if implicit else op.rate_explicit
+    interval = t_end / (frames - 1)
+    per = interval * rate / cfl
+    n_sub = max(1, math.ceil(per - 1e-9)) if math.isfinite(per) else math.inf
+    steps = n_sub * (frames - 1)
+    cells = int(grid.size)
+    per_step = cells / STEP_RATE.get(limiter, STEP_RATE_DEFAULT)
+    if implicit:
+        per_step += cells / IMPLICIT_RATE
+    return {"steps": steps, "dt": interval / n_sub if n_sub else math.inf,
+            "seconds": steps * per_step, "implicit": bool(implicit), "rate": rate,
+            "cells": cells}
+
+
+def case_estimate(case) -> dict | None:
+    """:func:`tracer_steps` for a case (computes its steady fields: cheap next to a run).
+
+    Returns ``None`` without a tracer, for ``tracer.t_end = inf`` (one sparse solve),
+    and for transient spots (the fields change during the run).
+    """
+    t = case.tracer
+    if t is None or math.isinf(t.t_end) or case.spots.mode == "transient":
+        return None
+    from ..density import spot_density
+    from .._roundoff import clip_roundoff
+    from .pipeline import particle_fields
+    rho = clip_roundoff(np.asarray(spot_density.solve(case.grid, case.orifice, case.spots),
+                                   dtype=float))
+    fields = particle_fields(case, rho)
+    return tracer_steps(case.grid, fields, t.t_end, t.frames, **case.tracer_options)
+
+
+def describe(est: dict) -> str:
+    """One line: steps, time step and estimated wall time."""
+    return (f"tracer: {est['steps']:.3g} steps of dt = {est['dt']:.3g} "
+            f"({'implicit' if est['implicit'] else 'explicit'} diffusion), about "
+            f"{_duration(est['seconds'])} on this machine")
+
+
+def refuse_if_long(case, est: dict | None, allow_long: bool = False) -> None:
+    """Raise :class:`CaseError` (one line naming ``tracer.t_end`` or ``tracer.cfl``) when
+    the run is estimated at more than :data:`MAX_SECONDS` and ``allow_long`` is false."""
+    if est is None or allow_long or est["seconds"] <= MAX_SECONDS:
+        return
+    cfl = case.tracer_options.get("cfl", 0.9)
+    # blame the cfl when the default would have made the run acceptable
+    key, value = ("tracer.cfl", cfl) if est["seconds"] * cfl / 0.9 <= MAX_SECONDS else \
+        ("tracer.t_end", case.tracer.t_end)
+    raise CaseError(f"{key}: the run would take about {_duration(est['seconds'])} "
+                    f"({est['steps']:.3g} steps of dt = {est['dt']:.3g}), more than a day; "
+                    f"shorten tracer.t_end, set tracer.t_end = inf for the geometrical "
+                    f"propagator (one solve), or pass --allow-long, got {value!r}")
+
+
+def _duration(seconds: float) -> str:
+    if not math.isfinite(seconds):
+        return "forever"
+    for unit, s in (("days", 86400.0), ("h", 3600.0), ("min", 60.0)):
+        if seconds >= 2 * s:
+            return f"{seconds / s:.3g} {unit}"
+    return f"{seconds:.3g} s"

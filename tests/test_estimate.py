@@ -1,0 +1,66 @@
+"""Run-time estimate before a tracer run (spotpde.app.estimate): the predicted number of
+steps is the solver's own, and runs estimated at more than a day are refused (exit 2,
+one line naming tracer.t_end or tracer.cfl) unless --allow-long."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from spotpde.app import estimate
+from spotpde import tracer
+from spotpde.app.cli import main
+from spotpde.grid import Grid
+
+
+@pytest.mark.parametrize("diffusion,D", [("explicit", 0.01), ("implicit", 0.5)])
+def test_predicted_steps_are_the_solvers(diffusion, D):
+    grid = Grid(2, (-2.0, 2.0), (0.0, 4.0), 0.25)
+    Z, X = grid.mesh()
+    zero = 0 * X + 0 * Z
+    fields = {"u_x": -0.1 * X + zero, "u_z": -1.0 - 0.2 * Z + zero, "D_xx": D + zero,
+              "D_xz": zero, "D_zz": D + zero}
+    P0 = np.exp(-(X**2 + (Z - 3) ** 2)) + zero
+    est = estimate.tracer_steps(grid, fields, 3.0, 4, limiter="koren", cfl=0.7,
+                                diffusion="auto")
+    res = tracer.solve(grid, fields, P0, 3.0, 4, limiter="koren", cfl=0.7)
+    assert est["steps"] == res.steps
+    assert est["implicit"] == (res.options["diffusion"] == "implicit")
+    assert est["implicit"] == (diffusion == "implicit")
+    assert est["seconds"] > 0
+
+
+def _write(tmp_path, t_end, cfl=0.9):
+    text = f"""
+[domain]
+x = [-8.0, 8.0]
+z = [0.0, 16.0]
+spacing = 0.125
+[orifice]
+width = 2.0
+[tracer]
+start = {{ x = 0.0, z = 12.0, width = 0.5 }}
+t_end = {t_end}
+cfl = {cfl}
+frames = 2
+"""
+    p = tmp_path / "case.toml"
+    p.write_text(text)
+    return str(p)
+
+
+def test_day_long_runs_are_refused(tmp_path, capsys):
+    path = _write(tmp_path, 1e9)
+    assert main(["check", path]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("tracer.t_end: the run would take about")
+    assert main(["check", path, "--allow-long"]) == 0
+    out = tmp_path / "never.nc"
+    assert main(["run", path, "-o", str(out)]) == 2
+    assert not out.exists()
+    path = _write(tmp_path, 10.0, cfl=1e-300)
+    assert main(["check", path]) == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1].startswith("tracer.cfl:")
+    path = _write(tmp_path, 10.0)
+    assert main(["check", path]) == 0
+    assert "steps of dt" in capsys.readouterr().err
