@@ -34,6 +34,8 @@ KERNEL_SHAPES = ("uniform", "gaussian", "exponential")
 #: Options of the tracer solver (``spotpde.tracer.solve``).
 LIMITERS = ("koren", "vanleer", "mc", "minmod", "weno5", "upwind")
 DIFFUSION_MODES = ("auto", "explicit", "implicit")
+#: ``kernel.diffusivity``: the discrete model's passage diffusivity, or the paper's eq. Dp.
+DIFFUSIVITIES = ("passage", "mean-field")
 
 #: Defaults of every key, table by table (CONTRACT.md). ``None`` marks an optional key
 #: without a default. The ``tracer`` table itself is optional.
@@ -48,6 +50,7 @@ DEFAULTS: dict[str, dict[str, Any]] = {
                "limiter": "weno5", "cfl": 0.9, "diffusion": "auto", "snapshots": "auto"},
     "output": {"path": "out.nc"},
 }
+DEFAULTS["kernel"]["diffusivity"] = "passage"
 RATE_TABLE_KEYS = {"times": None, "values": None}
 PROFILE_KEYS = {"x": None, "z": None, "values": None}
 START_KEYS = {"x": None, "y": None, "z": None, "width": 1.0}
@@ -118,6 +121,12 @@ class Case:
     def rule(self) -> float:
         """lam: ``kernel.rule``, or 1 for the void model."""
         return 1.0 if self.model == "void" else float(self.data["kernel"]["rule"])
+
+    @property
+    def diffusivity(self) -> str:
+        """``kernel.diffusivity``: ``"passage"`` or ``"mean-field"`` (``"mean-field"`` for the
+        void model, whose fields are exact: a void never displaces a particle twice)."""
+        return "mean-field" if self.model == "void" else str(self.data["kernel"]["diffusivity"])
 
     @property
     def kernel(self):
@@ -547,6 +556,7 @@ class _Validator:
             "volume": self.number("kernel.volume", t["volume"], gt=0),
             "aspect": self.number("kernel.aspect", t["aspect"], gt=0, le=1000),
             "rule": self.number("kernel.rule", t["rule"], gt=0, le=1),
+            "diffusivity": self.choice("kernel.diffusivity", t["diffusivity"], DIFFUSIVITIES),
         }
         if t["height"] is not None:
             out["height"] = self.number("kernel.height", t["height"], gt=0, le=1)

@@ -370,7 +370,7 @@ def _plane_convolution(stencil: np.ndarray, planes, axis: int, out_shape) -> np.
 
 
 def _constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, lam: float,
-                     conv: _Convolutions) -> dict[str, np.ndarray]:
+                     conv: _Convolutions, D_source: Mapping | None = None) -> dict[str, np.ndarray]:
     """``u_p`` and ``D_p`` for constant ``v_s`` and ``D_s`` from one convolution per stencil.
 
     With constant coefficients ``w * div(D_s rho_s) = D_s^ab w * d_b rho_s``, and the
@@ -379,14 +379,16 @@ def _constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, la
     ghost planes only (:func:`_boundary_planes`). So ``w * rho_s~`` on the grid padded by
     one cell gives ``u_z``, every ``w * d_b rho_s`` and (``w**2`` proportional to ``w``, or one
     more transform) ``D_p``; the plane terms are cheap 1D/2D convolutions. Identical to
-    the general path to round-off.
+    the general path to round-off. ``D_source`` (default ``D_s``): the constant tensor
+    ``T`` of ``D_p = w^2 * (rho_s T)`` (the passage diffusivity's ``v_s b_eff``).
     """
     comps = _COMPONENTS[grid.dims]
     h = grid.spacing
     hd = h**grid.dims
     rho_p = np.pad(rho_s, 1)
     inner = tuple(_inner_all(grid.dims))
-    need_D = any(not _is_zero(d) for d in D_s.values())
+    D_src = D_s if D_source is None else D_source
+    need_D = any(not _is_zero(d) for d in D_src.values())
     k1 = conv.request("rho_padded", rho_p, 1)
     k2 = conv.request("rho_padded", rho_p, 2) if need_D else None
     res = conv.run()
@@ -407,18 +409,19 @@ def _constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, la
             w_grad = (delta - corr)[inner]
             for a, d in coeffs.items():
                 fields[f"u_{a}"] += 2.0 * lam * float(d) * w_grad
-    for key, d in D_s.items():
+    for key, d in D_src.items():
         fields[key] = float(d) * res[k2][inner] if not _is_zero(d) else np.zeros(grid.shape)
     return fields
 
 
 def _general_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: float,
-                    conv: _Convolutions) -> dict[str, np.ndarray]:
+                    conv: _Convolutions, D_source: Mapping | None = None) -> dict[str, np.ndarray]:
     """``u_p`` and ``D_p`` for coefficients that vary in space: one transform per source.
 
     Sources ``rho_s D_s^ab`` (for ``D_p``), ``div(D_s rho_s)`` (second-order grid
     differences) and ``rho_s v_s`` are convolved with ``w**2`` or ``w``; constant factors
     are pulled out of the convolutions. Also returns ``"_G"``: the ``rho_s D_s^ab`` arrays.
+    ``D_source`` (default ``D_s``): the tensor ``T`` of ``D_p = w^2 * (rho_s T)``.
     """
     comps = _COMPONENTS[grid.dims]
     G = {}  # rho_s D_s^ab as arrays (None when identically zero)
@@ -428,10 +431,20 @@ def _general_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: float
             G[key] = None
             continue
         G[key] = rho_s * d
+        if D_source is not None:
+            continue
         if np.ndim(d) == 0:
             D_terms[key] = (float(d), conv.request("rho", rho_s, 2))
         else:
             D_terms[key] = (1.0, conv.request(key, G[key], 2))
+    if D_source is not None:  # D_p from another tensor than the drift's D_s
+        for key, d in D_source.items():
+            if _is_zero(d):
+                continue
+            if np.ndim(d) == 0:
+                D_terms[key] = (float(d), conv.request("rho", rho_s, 2))
+            else:
+                D_terms[key] = (1.0, conv.request("src_" + key, rho_s * d, 2))
 
     # u_p = -w * (rho_s u_s) + 2 lam w * div(D_s rho_s), div on the grid; a constant v_s
     # multiplies the convolution w * rho_s
@@ -466,13 +479,15 @@ def _general_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: float
 # -- the fields ------------------------------------------------------------------------------
 
 def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: float = 0.5,
-                    spot_diffusivity_tensor: Mapping | None = None) -> dict[str, np.ndarray]:
+                    spot_diffusivity_tensor: Mapping | None = None,
+                    diffusivity: str = "passage") -> dict[str, np.ndarray]:
     """Particle drift ``u_p`` and diffusivity ``D_p`` of the spot model.
 
     Implements (PHYSICS.md section 2, derivation in docs/coefficients.md)::
 
         u_p = - w * (rho_s u_s - 2 lam div(D_s rho_s)) + (1 - 2 lam) wall layer
-        D_p =   w^2 * (rho_s D_s)
+        D_p =   w^2 * (rho_s D_s)                  (diffusivity="mean-field")
+        D_p =   w^2 * (rho_s v_s b_eff(b, b_par))   (diffusivity="passage", default)
 
     with ``u_s = v_s z_hat``, ``*`` the linear (zero-padded) convolution over the silo
     (no spots outside it), ``div`` second-order differences on the grid (one-sided at the
@@ -490,6 +505,11 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
             printed eq. up).
         spot_diffusivity_tensor: optional full spot diffusivity tensor (keys ``D_xx``,
             ``D_xz``, ...; floats or grid arrays) replacing ``diag(D_perp, D_par)``.
+        diffusivity: ``"passage"`` (default): the discrete model's own diffusivity, exact
+            in uniform flow (passage correlations and shot noise, ``spotpde._passage``;
+            ``b_eff`` the diagonal tensor of ``_passage.effective_spot_length``
+            at the source point's ``b``, ``b_par``; docs/coefficients.md, "Beyond mean
+            field"); ``"mean-field"``: the paper's eq. Dp. The drift is the same.
 
     Returns:
         ``{"u_x", ["u_y",] "u_z", "D_xx", "D_xz", "D_zz", ["D_yy", "D_xy", "D_yz"]}``:
@@ -502,13 +522,23 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
     comps = _COMPONENTS[grid.dims]
     v_s = spots.drift
 
+    if diffusivity not in ("passage", "mean-field"):
+        raise ValueError(f"diffusivity: must be 'passage' or 'mean-field', got {diffusivity!r}")
+    D_source = None
+    if diffusivity == "passage":
+        from . import _passage
+
+        D_source = _passage.source_tensor(grid, spots, D_s, kernel, lam)
+
     conv = _Convolutions(grid, kernel)
     constant = np.ndim(v_s) == 0 and all(np.ndim(d) == 0 for d in D_s.values())
+    if D_source is not None:
+        constant = constant and all(np.ndim(d) == 0 for d in D_source.values())
     if constant and min(grid.shape) >= 3:
-        fields = _constant_fields(grid, rho_s, float(v_s), D_s, lam, conv)
+        fields = _constant_fields(grid, rho_s, float(v_s), D_s, lam, conv, D_source)
         G = {key: None if _is_zero(d) else rho_s * d for key, d in D_s.items()}
     else:
-        fields = _general_fields(grid, rho_s, v_s, D_s, lam, conv)
+        fields = _general_fields(grid, rho_s, v_s, D_s, lam, conv, D_source)
         G = fields.pop("_G")
 
     # wall layer of the reflecting side walls: (1 - 2 lam) int (D_s rho_s)^ab n_b w dA

@@ -146,6 +146,7 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
         "V1": V1,
         "V2": V2,
         "rule": float(case.rule),
+        "diffusivity": case.diffusivity,
         "model": case.model,
         "dims": int(grid.dims),
         "spotpde_version": __version__,
@@ -168,7 +169,7 @@ def particle_fields(case: Case, rho_s: np.ndarray) -> dict[str, np.ndarray]:
     else:
         coefficients = importlib.import_module("spotpde.coefficients")
         fields = coefficients.particle_fields(case.grid, rho_s, case.spots, case.kernel,
-                                              rule=case.rule)
+                                              rule=case.rule, diffusivity=case.diffusivity)
     return {name: np.asarray(a, dtype=float) for name, a in fields.items()}
 
 

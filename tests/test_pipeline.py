@@ -68,7 +68,7 @@ def fakes(monkeypatch):
             out.update(u_y=0 * rho_s, D_yy=V2 * rho_s, D_xy=0 * rho_s, D_yz=0 * rho_s)
         return out
 
-    def particle_fields(grid, rho_s, spots, kernel, rule=0.5):
+    def particle_fields(grid, rho_s, spots, kernel, rule=0.5, diffusivity="passage"):
         calls.append(("coefficients.particle_fields", rule))
         return fields(grid, rho_s, kernel.V1, kernel.V2)
 
