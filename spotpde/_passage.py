@@ -45,9 +45,9 @@ import scipy.ndimage
 __all__ = ["length_tensor", "effective_spot_length", "source_tensor", "keys"]
 
 #: Real-space extent of the kernel in units of its scale length (support / cut-off).
-_EXTENT = {"uniform": 1.0, "gaussian": 7.0, "exponential": 28.0}
+_EXTENT = {"uniform": 1.0, "gaussian": 7.0, "exponential": 14.0}
 #: Grid spacing in units of the kernel scale length (k_max = pi / h).
-_H = {"uniform": 1.0 / 24.0, "gaussian": 1.0 / 6.0, "exponential": 1.0 / 24.0}
+_H = {"uniform": 1.0 / 24.0, "gaussian": 1.0 / 6.0, "exponential": 1.0 / 8.0}
 _DIFFUSIVITIES = ("passage", "mean-field")
 #: One-particle tensors already computed (the fields of transient runs ask again and again).
 _CACHE: dict = {}
@@ -197,6 +197,8 @@ def _single(kernel, dims, b, b_par, lam, scale=1.0, kscale=1.0):
         comps = ("xx", "zz")
     w2m = w2 * measure
     mass = float(np.sum(w2m))
+    if dims == 3:  # Euler-Maclaurin end correction of the radial trapezoid (below)
+        mass += dkh * dkh / 12.0 * float(np.sum(w2[:, 0])) * dkz / (2.0 * math.pi) ** 2
     missing = kernel.V2 - mass
     rad = np.maximum(np.abs(kz) / kmax_z, kp / kmax_h)
     # the shell excludes the k_z = 0 row, which carries the columns' pole integrals
@@ -205,6 +207,9 @@ def _single(kernel, dims, b, b_par, lam, scale=1.0, kscale=1.0):
     out = {}
     for key in comps:
         total = float(np.sum(w2m * M[key])) + _tail(w2m, M[key], shell, missing)
+        if dims == 3:  # Euler-Maclaurin end correction of the radial trapezoid: g = k F(k)
+            F0 = float(np.sum(w2[:, 0] * M[key][:, 0])) * dkz * 2.0 * math.pi / (2.0 * math.pi) ** 3
+            total += dkh * dkh / 12.0 * F0
         out[key] = total / (2.0 * kernel.V1)
     res = {k: 0.0 for k in keys(dims)}
     res.update(out)
