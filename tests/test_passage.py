@@ -189,7 +189,7 @@ def test_direct_passage_monte_carlo_extrapolated_in_the_step(lam):
     reps = 6
     est = {}
     for step in (0.2, 0.1):
-        r = np.array([_passages(kernel, B, lam, step, 40_000, seed=1000 * step + i)
+        r = np.array([_passages(kernel, B, lam, step, 40_000, seed=int(1000 * step) + i)
                       for i in range(reps)])
         est[step] = (r.mean(axis=0), r.std(axis=0, ddof=1) / math.sqrt(reps))
     mean = 2 * est[0.1][0] - est[0.2][0]
