@@ -704,20 +704,57 @@ def velocity_correlation(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, r1
 
 
 def pair_diffusivity(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, r1, r2,
-                     spot_diffusivity_tensor: Mapping | None = None) -> dict[str, float]:
+                     spot_diffusivity_tensor: Mapping | None = None, *, rule: float = 0.5,
+                     diffusivity: str = "passage") -> dict[str, float]:
     """Diffusivity tensor of the separation ``r1 - r2`` of two tracer particles.
 
-    ``D^ab(r1, r2) = D_p^ab(r1) + D_p^ab(r2) - 2 X^ab(r1, r2)`` with ``X`` the cross
-    integral of :func:`velocity_correlation` (the paper's section "Relative Diffusion of
-    Two Tracers"); in uniform flow ``D^aa = 2 D_p^aa (1 - C_p^aa(r))``.
+    Mean field (``diffusivity="mean-field"``): ``D^ab(r1, r2) = D_p^ab(r1) + D_p^ab(r2) -
+    2 X^ab(r1, r2)`` with ``X`` the cross integral of :func:`velocity_correlation` (the
+    paper's section "Relative Diffusion of Two Tracers"); in uniform flow
+    ``D^aa = 2 D_p^aa (1 - C_p^aa(r))``.
+
+    Passage (default): the mean field plus the passage correction of the discrete model
+    in locally uniform flow, ``V1 f (B_passage(Delta) - B_mean-field(Delta))`` with
+    ``Delta = r1 - r2``, ``B`` the relative tensor of ``spotpde._passage.length_tensor``
+    and ``f = rho_s v_s``, ``b``, ``b_par`` taken at the cell of the midpoint (exact in
+    uniform flow; docs/coefficients.md section 7).
 
     Args:
         grid, rho_s, spots, kernel, r1, r2, spot_diffusivity_tensor: as in
             :func:`velocity_correlation`.
+        rule: ``lam`` (used by the passage correction only).
+        diffusivity: ``"passage"`` (default) or ``"mean-field"``.
 
     Returns:
         ``{"D_xx": ..., "D_xz": ..., ...}`` in d**2 per unit time.
     """
+    if diffusivity not in ("passage", "mean-field"):
+        raise ValueError(f"diffusivity: must be 'passage' or 'mean-field', got {diffusivity!r}")
+    lam = _check_rule(rule)
     X, X1, X2 = _two_point_integrals(grid, rho_s, spots, kernel, r1, r2,
                                      spot_diffusivity_tensor)
-    return {k: X1[k] + X2[k] - 2.0 * X[k] for k in DIFFUSIVITY_KEYS[grid.dims]}
+    out = {k: X1[k] + X2[k] - 2.0 * X[k] for k in DIFFUSIVITY_KEYS[grid.dims]}
+    if diffusivity == "passage":
+        from . import _passage
+
+        p1, p2 = _as_point(grid, r1, "r1"), _as_point(grid, r2, "r2")
+        mid = 0.5 * (p1 + p2)
+        comps = _COMPONENTS[grid.dims]
+        coords = grid.coords()
+        cell = tuple(int(np.argmin(np.abs(coords[c] - mid[comps.index(c)]))) for c in grid.axes)
+        D_s = spot_diffusivity(grid, spots, spot_diffusivity_tensor)
+        at = {k: float(np.asarray(v)[cell]) if np.ndim(v) else float(v) for k, v in D_s.items()}
+        v_s = float(np.asarray(spots.drift)[cell]) if np.ndim(spots.drift) else float(spots.drift)
+        if any(at[k] != 0.0 for k in at if k in ("D_xz", "D_xy", "D_yz")):
+            raise ValueError("diffusivity: 'passage' needs a diagonal spot diffusivity; pass "
+                             "diffusivity='mean-field' for a general tensor")
+        flux = float(np.asarray(rho_s)[cell]) * v_s
+        sep = tuple(np.array([d]) for d in (p1 - p2))
+        b, b_par = at["D_xx"] / v_s, at["D_zz"] / v_s
+        Bp = _passage.length_tensor(kernel, b, b_par, lam, separation=sep)
+        Bm = _passage.length_tensor(kernel, b, b_par, lam, diffusivity="mean-field",
+                                    separation=sep)
+        for key in out:
+            t = key[2:]
+            out[key] += kernel.V1 * flux * float(Bp[t][0] - Bm[t][0])
+    return out

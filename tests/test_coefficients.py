@@ -276,7 +276,7 @@ def test_uniform_flow_correlation_equals_kernel_correlation(make):
             assert abs(c["C_xx"] - expect) < 2e-3, (r, c, expect)
             assert abs(c["C_zz"] - expect) < 2e-3
             assert c["C_xz"] == 0.0
-            d = C.pair_diffusivity(grid, rho, spots, kernel, r1, r2)
+            d = C.pair_diffusivity(grid, rho, spots, kernel, r1, r2, diffusivity="mean-field")
             Dp = kernel.V2 * 3.0 * 1.3
             assert abs(d["D_xx"] - 2 * Dp * (1 - expect)) < 5e-3 * Dp
     # far apart: (almost) no shared spots, (almost) no correlation

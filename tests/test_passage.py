@@ -350,3 +350,22 @@ def test_unknown_diffusivity_is_an_invalid_case(tmp_path):
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and "kernel.diffusivity" in lines[0] and "mean-field" in lines[0]
     assert "Traceback" not in r.stderr and not out.exists()
+
+
+def test_pair_diffusivity_passage_option_in_uniform_flow():
+    """coefficients.pair_diffusivity: mean field from the quadrature of the fields, plus the
+    passage correction; in uniform flow it is V1 f B_passage(Delta)."""
+    kernel = kernels.Gaussian(sigma=1.0, volume=0.05, dims=2)
+    g = Grid(2, (-10.0, 10.0), (0.0, 20.0), 0.25)
+    rho = np.full(g.shape, 0.4)
+    spots = Spots(drift=1.5, b=B)
+    r1, r2 = (0.6, 10.0), (-0.9, 10.0)
+    pa = C.pair_diffusivity(g, rho, spots, kernel, r1, r2, rule=0.5)
+    mf = C.pair_diffusivity(g, rho, spots, kernel, r1, r2, diffusivity="mean-field")
+    want = P.length_tensor(kernel, B, 0.0, 0.5, separation=(np.array([1.5]), np.array([0.0])))
+    f = 0.4 * 1.5
+    assert pa["D_xx"] == pytest.approx(kernel.V1 * f * want["xx"][0], rel=2e-3)
+    assert pa["D_zz"] == pytest.approx(kernel.V1 * f * want["zz"][0], rel=2e-3)
+    assert pa["D_xx"] < 0.8 * mf["D_xx"]
+    one = C.pair_diffusivity(g, rho, spots, kernel, r1, r2, rule=1.0)
+    assert one["D_xx"] == pytest.approx(mf["D_xx"], rel=2e-3)
