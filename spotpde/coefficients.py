@@ -478,6 +478,37 @@ def _general_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: float
 
 # -- the fields ------------------------------------------------------------------------------
 
+def _keep_flux_velocity(grid: Grid, rho_s, D_s: Mapping, D_source: Mapping, kernel,
+                        fields: dict) -> None:
+    """Passage drift: ``u_p += div(D_p - D_p_mf)`` so that ``u_p - div D_p`` stays the mean field's.
+
+    The probability-flux velocity at uniform density is a first moment of the spot
+    displacements, which the mean field gets exactly (each spot's effect is linear and
+    spots are independent); only the second moments change with the passage correlations.
+    ``D_p - D_p_mf = w^2 * (rho_s (T - D_s))``; for constant tensors it is
+    ``(1 - D_s / T) D_p`` per component, otherwise one more convolution per component.
+    Zero in uniform flow (divergence free), so the uniform-flow drift is unchanged.
+    """
+    diff = {}
+    todo = {}
+    for key, t in D_source.items():
+        d = D_s.get(key, 0.0)
+        if _is_zero(t) and _is_zero(d):
+            continue
+        if np.ndim(t) == 0 and np.ndim(d) == 0 and float(t) != 0.0:
+            diff[key] = (1.0 - float(d) / float(t)) * fields[key]
+        else:
+            todo[key] = rho_s * (np.asarray(t, dtype=float) - np.asarray(d, dtype=float))
+    if todo:
+        conv = _Convolutions(grid, kernel)
+        keys = {key: conv.request("diff_" + key, src, 2) for key, src in todo.items()}
+        res = conv.run()
+        diff.update({key: res[k] for key, k in keys.items()})
+    div = divergence(grid, diff)
+    for a in _COMPONENTS[grid.dims]:
+        fields[f"u_{a}"] = fields[f"u_{a}"] + div[a]
+
+
 def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: float = 0.5,
                     spot_diffusivity_tensor: Mapping | None = None,
                     diffusivity: str = "passage") -> dict[str, np.ndarray]:
@@ -487,7 +518,8 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
 
         u_p = - w * (rho_s u_s - 2 lam div(D_s rho_s)) + (1 - 2 lam) wall layer
         D_p =   w^2 * (rho_s D_s)                  (diffusivity="mean-field")
-        D_p =   w^2 * (rho_s v_s b_eff(b, b_par))   (diffusivity="passage", default)
+        D_p =   w^2 * (rho_s v_s b_eff(b, b_par))   (diffusivity="passage", default;
+                                                     u_p += div(D_p - D_p_mf))
 
     with ``u_s = v_s z_hat``, ``*`` the linear (zero-padded) convolution over the silo
     (no spots outside it), ``div`` second-order differences on the grid (one-sided at the
@@ -509,7 +541,9 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
             in uniform flow (passage correlations and shot noise, ``spotpde._passage``;
             ``b_eff`` the diagonal tensor of ``_passage.effective_spot_length``
             at the source point's ``b``, ``b_par``; docs/coefficients.md, "Beyond mean
-            field"); ``"mean-field"``: the paper's eq. Dp. The drift is the same.
+            field"); ``"mean-field"``: the paper's eq. Dp. The drift differs by
+            ``div(D_p - D_p_mf)``, so that the probability-flux velocity ``u_p - div D_p``
+            (the mean particle flow, exact in the mean field) is the same for both.
 
     Returns:
         ``{"u_x", ["u_y",] "u_z", "D_xx", "D_xz", "D_zz", ["D_yy", "D_xy", "D_yz"]}``:
@@ -540,6 +574,8 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
     else:
         fields = _general_fields(grid, rho_s, v_s, D_s, lam, conv, D_source)
         G = fields.pop("_G")
+    if D_source is not None:
+        _keep_flux_velocity(grid, rho_s, D_s, D_source, kernel, fields)
 
     # wall layer of the reflecting side walls: (1 - 2 lam) int (D_s rho_s)^ab n_b w dA
     if grid.walls == "reflecting" and lam != 0.5:

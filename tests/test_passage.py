@@ -310,9 +310,29 @@ def test_mean_field_option_is_the_old_eq_Dp():
     assert f["D_zz"][ix] == pytest.approx(kernel.V2 * rho[ix] * spots.D_par, rel=1e-10)
     with pytest.raises(ValueError, match="diffusivity"):
         C.particle_fields(g, rho, spots, kernel, diffusivity="exact")
-    # drift is the same for both diffusivities
+    # the mean flow (probability-flux velocity) is the same for both diffusivities; the
+    # drift itself differs by div(D_p - D_p_mf), zero in uniform flow
     p = C.particle_fields(g, rho, spots, kernel, rule=0.5)
-    np.testing.assert_array_equal(p["u_z"], f["u_z"])
+    fp, fm = C.flux_velocity(g, p), C.flux_velocity(g, f)
+    for a in ("u_x", "u_z"):
+        np.testing.assert_allclose(fp[a], fm[a], rtol=0, atol=1e-13 * np.abs(fm["u_z"]).max())
+    assert p["u_z"][ix] == pytest.approx(f["u_z"][ix], rel=1e-10)
+
+
+def test_passage_keeps_the_mean_flow_in_a_converging_silo():
+    """Point orifice, variable b: u_p - div D_p is the mean field's, D_p is not."""
+    kernel = kernels.Gaussian(sigma=1.0, volume=0.05, dims=2)
+    g = Grid(2, (-10.0, 10.0), (0.0, 20.0), 0.25)
+    X = np.broadcast_to(g.x[None, :], g.shape)
+    spots = Spots(drift=1.0, b=1.0 + 0.4 * np.cos(X / 4.0) ** 2, b_par=0.2)
+    rho = spot_density.steady(g, Orifice(x=0.0, width=2.0, rate=1.0), spots)
+    p = C.particle_fields(g, rho, spots, kernel, rule=0.5)
+    m = C.particle_fields(g, rho, spots, kernel, rule=0.5, diffusivity="mean-field")
+    fp, fm = C.flux_velocity(g, p), C.flux_velocity(g, m)
+    scale = np.abs(fm["u_z"]).max()
+    for a in ("u_x", "u_z"):
+        np.testing.assert_allclose(fp[a], fm[a], rtol=0, atol=1e-12 * scale)
+    assert np.abs(p["D_xx"] - m["D_xx"]).max() > 0.2 * np.abs(m["D_xx"]).max()
 
 
 # -- the case key, the Dataset and a tracer on passage fields ----------------------------------------
@@ -335,7 +355,11 @@ def test_case_key_and_dataset_attribute_and_tracer():
     mf = spotpde.run(spotpde.load_case(_case(diffusivity="mean-field")))
     assert mf.attrs["diffusivity"] == "mean-field"
     assert float(mf["D_zz"].max()) == 0.0 < float(ds["D_zz"].max())
-    np.testing.assert_array_equal(mf["u_z"].values, ds["u_z"].values)
+    # the same mean flow: u_p - div D_p
+    g = case.grid
+    fp = C.flux_velocity(g, {k: ds[k].values for k in ("u_x", "u_z", "D_xx", "D_xz", "D_zz")})
+    fm = C.flux_velocity(g, {k: mf[k].values for k in ("u_x", "u_z", "D_xx", "D_xz", "D_zz")})
+    np.testing.assert_allclose(fp["u_z"], fm["u_z"], rtol=0, atol=1e-12 * np.abs(fm["u_z"]).max())
 
 
 def test_unknown_diffusivity_is_an_invalid_case(tmp_path):
