@@ -393,3 +393,18 @@ def test_pair_diffusivity_passage_option_in_uniform_flow():
     assert pa["D_xx"] < 0.8 * mf["D_xx"]
     one = C.pair_diffusivity(g, rho, spots, kernel, r1, r2, rule=1.0)
     assert one["D_xx"] == pytest.approx(mf["D_xx"], rel=2e-3)
+
+
+@pytest.mark.slow
+def test_source_tensor_table_when_b_and_b_par_both_vary():
+    """Both lengths as fields: the 6 x 6 Chebyshev table against direct quadratures."""
+    kernel = kernels.Gaussian(sigma=1.0, volume=0.05, dims=2)
+    g = Grid(2, (-10.0, 10.0), (0.0, 20.0), 0.5)
+    Z, X = np.broadcast_arrays(*g.mesh())
+    sp = Spots(drift=1.0 + 0.1 * Z / 20, b=1.0 + 0.5 * np.sin(X / 3) ** 2, b_par=0.1 + 0.3 * Z / 20)
+    src = P.source_tensor(g, sp, C.spot_diffusivity(g, sp), kernel, 0.5)
+    for i, j in ((3, 5), (20, 30), (39, 39)):
+        be = P.effective_spot_length(kernel, float(sp.b[i, j]), float(sp.b_par[i, j]), 0.5)
+        v = float(sp.drift[i, j])
+        assert src["D_xx"][i, j] == pytest.approx(v * be["xx"], rel=1e-6)
+        assert src["D_zz"][i, j] == pytest.approx(v * be["zz"], rel=1e-6)
