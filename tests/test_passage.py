@@ -235,6 +235,7 @@ def test_pair_tensor_rule_1_is_mean_field(kernel):
     assert np.all(got["xx"] * got["zz"] - got["xz"] ** 2 > -1e-6 * scale**2)
 
 
+@pytest.mark.slow
 def test_pair_tensor_3d_axes():
     """3D: a separation along x seen by xx equals the same separation along y seen by yy."""
     kernel = kernels.Gaussian(sigma=1.0, volume=0.05, dims=3)
