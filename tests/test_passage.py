@@ -41,12 +41,13 @@ def _gaussian_closed_form(kernel, b, lam):
     def f(k, p):  # |w^|^2 (k_z integral done) times k^p
         return V1 * V1 * np.exp(-(k * s) ** 2) * 0.5 * special.erfcx(b * k * k * sz) * k**p
 
+    def q(p):  # int_0^inf f k^p dk / 2pi
+        return integrate.quad(f, 0, np.inf, args=(p,), epsabs=0, epsrel=1e-12)[0] / (2 * np.pi)
+
     if kernel.dims == 2:  # int dk_x / 2pi over the whole line
-        xx = -c * 2 * integrate.quad(f, 0, np.inf, args=(2,), epsabs=0, epsrel=1e-12)[0] / (2 * np.pi)
-        zz = 2.0 * 2 * integrate.quad(f, 0, np.inf, args=(0,), epsabs=0, epsrel=1e-12)[0] / (2 * np.pi)
+        xx, zz = -c * 2 * q(2), 2.0 * 2 * q(0)
     else:  # int d^2k / (2pi)^2 = int k dk / 2pi; k_x^2 -> k^2 / 2
-        xx = -c * 0.5 * integrate.quad(f, 0, np.inf, args=(3,), epsabs=0, epsrel=1e-12)[0] / (2 * np.pi)
-        zz = 2.0 * integrate.quad(f, 0, np.inf, args=(1,), epsabs=0, epsrel=1e-12)[0] / (2 * np.pi)
+        xx, zz = -c * 0.5 * q(3), 2.0 * q(1)
     return {"xx": b * kernel.V2 / V1 + xx / (2 * V1), "zz": zz / (2 * V1)}
 
 
@@ -177,7 +178,8 @@ def _passages(kernel, b, lam, step, n, seed, X=20.0, Z=7.0):
         Y[1] -= w * step
         x += dx
         z += step
-    return 2 * X * np.mean(Y[0] ** 2) / (2 * kernel.V1), 2 * X * np.mean(Y[1] ** 2) / (2 * kernel.V1)
+    norm = 2 * X / (2 * kernel.V1)
+    return norm * np.mean(Y[0] ** 2), norm * np.mean(Y[1] ** 2)
 
 
 @pytest.mark.slow
@@ -294,8 +296,8 @@ def test_particle_fields_variable_b_uses_the_local_length():
         assert f["D_zz"][k, i] / (kernel.V1 * 0.2) == pytest.approx(want["zz"], rel=1e-6)
     smooth = 1.0 + 0.5 * np.sin(X / 3.0) ** 2
     fs = C.particle_fields(g, rho, Spots(drift=1.0, b=smooth), kernel, rule=0.5)
-    src = P.source_tensor(g, Spots(drift=1.0, b=smooth), C.spot_diffusivity(g, Spots(drift=1.0, b=smooth)),
-                          kernel, 0.5)
+    sp = Spots(drift=1.0, b=smooth)
+    src = P.source_tensor(g, sp, C.spot_diffusivity(g, sp), kernel, 0.5)
     i = int(np.argmin(np.abs(g.x - 2.0)))
     exact = P.effective_spot_length(kernel, float(smooth[k, i]), 0.0, 0.5)["xx"]
     assert src["D_xx"][k, i] == pytest.approx(exact, rel=1e-6)
@@ -336,7 +338,7 @@ def test_passage_keeps_the_mean_flow_in_a_converging_silo():
     assert np.abs(p["D_xx"] - m["D_xx"]).max() > 0.2 * np.abs(m["D_xx"]).max()
 
 
-# -- the case key, the Dataset and a tracer on passage fields ----------------------------------------
+# -- the case key, the Dataset and a tracer on passage fields ------------------------------
 
 def _case(**kernel):
     return {"domain": {"dims": 2, "x": [-8.0, 8.0], "z": [0.0, 16.0], "spacing": 0.5},
@@ -402,7 +404,8 @@ def test_source_tensor_table_when_b_and_b_par_both_vary():
     kernel = kernels.Gaussian(sigma=1.0, volume=0.05, dims=2)
     g = Grid(2, (-10.0, 10.0), (0.0, 20.0), 0.5)
     Z, X = np.broadcast_arrays(*g.mesh())
-    sp = Spots(drift=1.0 + 0.1 * Z / 20, b=1.0 + 0.5 * np.sin(X / 3) ** 2, b_par=0.1 + 0.3 * Z / 20)
+    sp = Spots(drift=1.0 + 0.1 * Z / 20, b=1.0 + 0.5 * np.sin(X / 3) ** 2,
+               b_par=0.1 + 0.3 * Z / 20)
     src = P.source_tensor(g, sp, C.spot_diffusivity(g, sp), kernel, 0.5)
     for i, j in ((3, 5), (20, 30), (39, 39)):
         be = P.effective_spot_length(kernel, float(sp.b[i, j]), float(sp.b_par[i, j]), 0.5)
