@@ -244,6 +244,9 @@ def _pairs(kernel, dims, b, b_par, lam, separation):
          for a, f in zip([ah] * (dims - 1) + [az], far)]
     if dims == 3:  # bound the 3D grid (128^3 nodes): coarser spacing, same box
         hs = [max(hi, Li / 128.0) for Li, hi in zip(L, hs)]
+    while math.prod(Li / hi for Li, hi in zip(L, hs)) > 4.2e6:  # very anisotropic kernels
+        a = int(np.argmax([Li / hi for Li, hi in zip(L, hs)]))
+        hs[a] *= 1.25
     n = [scipy.fft.next_fast_len(int(math.ceil(Li / hi))) for Li, hi in zip(L, hs)]
     L = [m * hi for m, hi in zip(n, hs)]
     ks = [2.0 * math.pi * scipy.fft.fftfreq(m, hi) for m, hi in zip(n, hs)]
