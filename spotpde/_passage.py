@@ -416,37 +416,36 @@ def source_tensor(grid, spots, D_s, kernel, lam) -> dict:
         xx, zz = be["xx"], be["zz"]
     else:
         b, b_par = np.broadcast_arrays(b, b_par)
-        pairs = np.unique(np.stack([b.ravel(), b_par.ravel()], axis=1), axis=0)
-        if len(pairs) <= _DIRECT:
-            xx, zz = np.empty(b.shape), np.empty(b.shape)
-            for bb, bp in pairs:
-                be = effective_spot_length(kernel, bb, bp, lam)
-                sel = (b == bb) & (b_par == bp)
-                xx[sel], zz[sel] = be["xx"], be["zz"]
+        ub, ib = np.unique(b, return_inverse=True)      # interpolate on distinct values only
+        up, ip = np.unique(b_par, return_inverse=True)
+        ib, ip = ib.reshape(b.shape), ip.reshape(b.shape)
+        if ub.size * up.size <= _DIRECT:
+            table = np.empty((ub.size, up.size, 2))
+            for i, bb in enumerate(ub):
+                for j, bp in enumerate(up):
+                    be = effective_spot_length(kernel, bb, bp, lam)
+                    table[i, j] = be["xx"], be["zz"]
+            vals = table[ib, ip]
         else:
-            vary = [float(np.ptp(a)) > 0 for a in (b, b_par)]
-            n = _TABLE_NODES[sum(vary)]
-            nb = _cheb(b.min(), b.max(), n) if vary[0] else np.array([b.min()])
-            npar = _cheb(b_par.min(), b_par.max(), n) if vary[1] else np.array([b_par.min()])
+            n = _TABLE_NODES[int(ub.size > 1) + int(up.size > 1)]
+            nb = _cheb(ub[0], ub[-1], n) if ub.size > 1 else ub[:1]
+            npar = _cheb(up[0], up[-1], n) if up.size > 1 else up[:1]
             table = np.empty((nb.size, npar.size, 2))
             for i, bb in enumerate(nb):
                 for j, bp in enumerate(npar):
                     be = effective_spot_length(kernel, bb, max(bp, 0.0), lam)
                     table[i, j] = be["xx"], be["zz"]
-            if vary[0] and vary[1]:
-                # interpolate in b_par on every b node, then in b, cell by cell
-                flat_b, flat_p = b.ravel(), b_par.ravel()
-                inner = _interp(npar, np.moveaxis(table, 1, 0), flat_p)  # (cells, nb, 2)
-                # Lagrange weights of every cell's b on the b nodes
-                W = _interp(nb, np.eye(nb.size), flat_b)  # (cells, nb)
-                vals = np.einsum("cn,cnk->ck", W, inner)
-                xx, zz = vals[:, 0].reshape(b.shape), vals[:, 1].reshape(b.shape)
-            elif vary[0]:
-                v = _interp(nb, table[:, 0, :], b.ravel())
-                xx, zz = v[:, 0].reshape(b.shape), v[:, 1].reshape(b.shape)
+            # Lagrange weights of the distinct b (b_par) on the b (b_par) nodes
+            Wb = _interp(nb, np.eye(nb.size), ub) if nb.size > 1 else np.ones((1, 1))
+            Wp = _interp(npar, np.eye(npar.size), up) if npar.size > 1 else np.ones((1, 1))
+            inner = np.einsum("pm,nmk->pnk", Wp, table)       # (distinct b_par, b nodes, 2)
+            if up.size == 1:
+                vals = (Wb @ inner[0])[ib]                    # (cells..., 2)
+            elif ub.size == 1:
+                vals = inner[:, 0, :][ip]
             else:
-                v = _interp(npar, table[0, :, :], b_par.ravel())
-                xx, zz = v[:, 0].reshape(b.shape), v[:, 1].reshape(b.shape)
+                vals = np.einsum("...n,...nk->...k", Wb[ib], inner[ip])
+        xx, zz = vals[..., 0], vals[..., 1]
     out = {k: 0.0 for k in D_s}
     out.update({"D_xx": v_s * xx, "D_zz": v_s * zz})
     if dims == 3:

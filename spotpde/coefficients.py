@@ -437,14 +437,22 @@ def _general_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: float
             D_terms[key] = (float(d), conv.request("rho", rho_s, 2))
         else:
             D_terms[key] = (1.0, conv.request(key, G[key], 2))
+    diff_terms = {}  # passage drift: w^2 * (rho_s (T - D_s)) where not a multiple of D_p
     if D_source is not None:  # D_p from another tensor than the drift's D_s
+        names = {}
         for key, d in D_source.items():
             if _is_zero(d):
                 continue
             if np.ndim(d) == 0:
                 D_terms[key] = (float(d), conv.request("rho", rho_s, 2))
-            else:
-                D_terms[key] = (1.0, conv.request("src_" + key, rho_s * d, 2))
+            else:  # identical arrays (D_yy = D_xx) share one transform
+                name = names.setdefault(id(d), "src_" + key)
+                D_terms[key] = (1.0, conv.request(name, rho_s * d, 2))
+            ds = D_s.get(key, 0.0)
+            if _is_zero(ds) or _proportional_fields(d, ds) is not None:
+                continue
+            name = names.setdefault((id(d), id(ds)), "diff_" + key)
+            diff_terms[key] = conv.request(name, rho_s * (d - ds), 2)
 
     # u_p = -w * (rho_s u_s) + 2 lam w * div(D_s rho_s), div on the grid; a constant v_s
     # multiplies the convolution w * rho_s
@@ -473,10 +481,25 @@ def _general_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: float
         else:
             fields[key] = np.zeros(grid.shape)
     fields["_G"] = G
+    if diff_terms:
+        fields["_diff"] = {key: res[k] for key, k in diff_terms.items()}
     return fields
 
 
 # -- the fields ------------------------------------------------------------------------------
+
+def _proportional_fields(t, d) -> float | None:
+    """``c`` if ``t == c * d`` (floats or arrays, to round-off), else None."""
+    if np.ndim(t) == 0 and np.ndim(d) == 0:
+        return float(t) / float(d) if float(d) != 0.0 else None
+    t, d = np.broadcast_arrays(np.asarray(t, dtype=float), np.asarray(d, dtype=float))
+    flat_d = d.ravel()
+    i = int(np.argmax(np.abs(flat_d)))
+    if flat_d[i] == 0.0:
+        return None
+    c = float(t.ravel()[i] / flat_d[i])
+    return c if np.allclose(t, c * d, rtol=1e-13, atol=0.0) else None
+
 
 def _keep_flux_velocity(grid: Grid, rho_s, D_s: Mapping, D_source: Mapping, kernel,
                         fields: dict) -> None:
@@ -489,14 +512,18 @@ def _keep_flux_velocity(grid: Grid, rho_s, D_s: Mapping, D_source: Mapping, kern
     ``(1 - D_s / T) D_p`` per component, otherwise one more convolution per component.
     Zero in uniform flow (divergence free), so the uniform-flow drift is unchanged.
     """
-    diff = {}
+    diff = dict(fields.pop("_diff", {}))  # computed with the fields (_general_fields)
     todo = {}
     for key, t in D_source.items():
         d = D_s.get(key, 0.0)
-        if _is_zero(t) and _is_zero(d):
+        if key in diff or (_is_zero(t) and _is_zero(d)):
             continue
-        if np.ndim(t) == 0 and np.ndim(d) == 0 and float(t) != 0.0:
-            diff[key] = (1.0 - float(d) / float(t)) * fields[key]
+        if _is_zero(d):  # no mean-field component: the difference is D_p itself
+            diff[key] = fields[key]
+            continue
+        c = _proportional_fields(t, d)
+        if c is not None and c != 0.0:  # T = c D_s: D_p - D_p_mf = (1 - 1/c) D_p
+            diff[key] = (1.0 - 1.0 / c) * fields[key]
         else:
             todo[key] = rho_s * (np.asarray(t, dtype=float) - np.asarray(d, dtype=float))
     if todo:
