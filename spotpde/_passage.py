@@ -42,7 +42,8 @@ import numpy as np
 import scipy.fft
 import scipy.ndimage
 
-__all__ = ["length_tensor", "effective_spot_length", "source_tensor", "keys"]
+__all__ = ["length_tensor", "effective_spot_length", "source_tensor", "keep_flux_velocity",
+           "add_pair_correction", "proportional", "keys"]
 
 #: Real-space extent of the kernel in units of its scale length (support / cut-off).
 _EXTENT = {"uniform": 1.0, "gaussian": 7.0, "exponential": 14.0}
@@ -451,3 +452,84 @@ def source_tensor(grid, spots, D_s, kernel, lam) -> dict:
     if dims == 3:
         out["D_yy"] = out["D_xx"]
     return out
+
+
+def proportional(t, d) -> float | None:
+    """``c`` if ``t == c * d`` (floats or arrays, to round-off), else None."""
+    if np.ndim(t) == 0 and np.ndim(d) == 0:
+        return float(t) / float(d) if float(d) != 0.0 else None
+    t, d = np.broadcast_arrays(np.asarray(t, dtype=float), np.asarray(d, dtype=float))
+    flat_d = d.ravel()
+    i = int(np.argmax(np.abs(flat_d)))
+    if flat_d[i] == 0.0:
+        return None
+    c = float(t.ravel()[i] / flat_d[i])
+    return c if np.allclose(t, c * d, rtol=1e-13, atol=0.0) else None
+
+
+def keep_flux_velocity(grid, rho_s, D_s, D_source, kernel, fields: dict) -> None:
+    """Passage drift: ``u_p += div(D_p - D_p_mf)``, so ``u_p - div D_p`` stays the mean field's.
+
+    The probability-flux velocity at uniform density is a first moment of the spot
+    displacements, which the mean field gets exactly (each spot's effect is linear and
+    spots are independent); only the second moments change with the passage correlations.
+    ``D_p - D_p_mf = w^2 * (rho_s (T - D_s))``: ``D_p`` itself where ``D_s`` vanishes,
+    ``(1 - 1/c) D_p`` where ``T = c D_s``, otherwise the convolutions that
+    ``coefficients._general_fields`` batched with the others (``fields["_diff"]``) or,
+    failing those, one more convolution per component. Zero in uniform flow (divergence
+    free), so the uniform-flow drift is unchanged. Modifies ``fields`` in place.
+    """
+    from .coefficients import _COMPONENTS, _Convolutions, _is_zero, divergence
+
+    diff = dict(fields.pop("_diff", {}))
+    todo = {}
+    for key, t in D_source.items():
+        d = D_s.get(key, 0.0)
+        if key in diff or (_is_zero(t) and _is_zero(d)):
+            continue
+        if _is_zero(d):  # no mean-field component: the difference is D_p itself
+            diff[key] = fields[key]
+            continue
+        c = proportional(t, d)
+        if c is not None and c != 0.0:  # T = c D_s: D_p - D_p_mf = (1 - 1/c) D_p
+            diff[key] = (1.0 - 1.0 / c) * fields[key]
+        else:
+            todo[key] = rho_s * (np.asarray(t, dtype=float) - np.asarray(d, dtype=float))
+    if todo:
+        conv = _Convolutions(grid, kernel)
+        keys_ = {key: conv.request("diff_" + key, src, 2) for key, src in todo.items()}
+        res = conv.run()
+        diff.update({key: res[k] for key, k in keys_.items()})
+    div = divergence(grid, diff)
+    for a in _COMPONENTS[grid.dims]:
+        fields[f"u_{a}"] = fields[f"u_{a}"] + div[a]
+
+
+def add_pair_correction(grid, rho_s, spots, kernel, r1, r2, spot_diffusivity_tensor, lam,
+                        out: dict) -> None:
+    """Add ``V1 f (B_passage(r1 - r2) - B_mean-field(r1 - r2))`` to a mean-field pair tensor.
+
+    ``f = rho_s v_s``, ``b``, ``b_par`` at the grid cell of the midpoint (locally uniform
+    flow; exact in uniform flow). ``out``: ``{"D_xx": ..., ...}``, modified in place.
+    """
+    from .coefficients import _COMPONENTS, _as_point, spot_diffusivity
+
+    p1, p2 = _as_point(grid, r1, "r1"), _as_point(grid, r2, "r2")
+    mid = 0.5 * (p1 + p2)
+    comps = _COMPONENTS[grid.dims]
+    coords = grid.coords()
+    cell = tuple(int(np.argmin(np.abs(coords[c] - mid[comps.index(c)]))) for c in grid.axes)
+    D_s = spot_diffusivity(grid, spots, spot_diffusivity_tensor)
+    at = {k: float(np.asarray(v)[cell]) if np.ndim(v) else float(v) for k, v in D_s.items()}
+    v_s = float(np.asarray(spots.drift)[cell]) if np.ndim(spots.drift) else float(spots.drift)
+    if any(at[k] != 0.0 for k in at if k in ("D_xz", "D_xy", "D_yz")):
+        raise ValueError("diffusivity: 'passage' needs a diagonal spot diffusivity; pass "
+                         "diffusivity='mean-field' for a general tensor")
+    flux = float(np.asarray(rho_s)[cell]) * v_s
+    sep = tuple(np.array([d]) for d in (p1 - p2))
+    b, b_par = at["D_xx"] / v_s, at["D_zz"] / v_s
+    Bp = length_tensor(kernel, b, b_par, lam, separation=sep)
+    Bm = length_tensor(kernel, b, b_par, lam, diffusivity="mean-field", separation=sep)
+    for key in out:
+        t = key[2:]
+        out[key] += kernel.V1 * flux * float(Bp[t][0] - Bm[t][0])

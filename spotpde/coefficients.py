@@ -439,6 +439,8 @@ def _general_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: float
             D_terms[key] = (1.0, conv.request(key, G[key], 2))
     diff_terms = {}  # passage drift: w^2 * (rho_s (T - D_s)) where not a multiple of D_p
     if D_source is not None:  # D_p from another tensor than the drift's D_s
+        from . import _passage
+
         names = {}
         for key, d in D_source.items():
             if _is_zero(d):
@@ -449,7 +451,7 @@ def _general_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: float
                 name = names.setdefault(id(d), "src_" + key)
                 D_terms[key] = (1.0, conv.request(name, rho_s * d, 2))
             ds = D_s.get(key, 0.0)
-            if _is_zero(ds) or _proportional_fields(d, ds) is not None:
+            if _is_zero(ds) or _passage.proportional(d, ds) is not None:
                 continue
             name = names.setdefault((id(d), id(ds)), "diff_" + key)
             diff_terms[key] = conv.request(name, rho_s * (d - ds), 2)
@@ -487,54 +489,6 @@ def _general_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: float
 
 
 # -- the fields ------------------------------------------------------------------------------
-
-def _proportional_fields(t, d) -> float | None:
-    """``c`` if ``t == c * d`` (floats or arrays, to round-off), else None."""
-    if np.ndim(t) == 0 and np.ndim(d) == 0:
-        return float(t) / float(d) if float(d) != 0.0 else None
-    t, d = np.broadcast_arrays(np.asarray(t, dtype=float), np.asarray(d, dtype=float))
-    flat_d = d.ravel()
-    i = int(np.argmax(np.abs(flat_d)))
-    if flat_d[i] == 0.0:
-        return None
-    c = float(t.ravel()[i] / flat_d[i])
-    return c if np.allclose(t, c * d, rtol=1e-13, atol=0.0) else None
-
-
-def _keep_flux_velocity(grid: Grid, rho_s, D_s: Mapping, D_source: Mapping, kernel,
-                        fields: dict) -> None:
-    """Passage drift: ``u_p += div(D_p - D_p_mf)`` so that ``u_p - div D_p`` stays the mean field's.
-
-    The probability-flux velocity at uniform density is a first moment of the spot
-    displacements, which the mean field gets exactly (each spot's effect is linear and
-    spots are independent); only the second moments change with the passage correlations.
-    ``D_p - D_p_mf = w^2 * (rho_s (T - D_s))``; for constant tensors it is
-    ``(1 - D_s / T) D_p`` per component, otherwise one more convolution per component.
-    Zero in uniform flow (divergence free), so the uniform-flow drift is unchanged.
-    """
-    diff = dict(fields.pop("_diff", {}))  # computed with the fields (_general_fields)
-    todo = {}
-    for key, t in D_source.items():
-        d = D_s.get(key, 0.0)
-        if key in diff or (_is_zero(t) and _is_zero(d)):
-            continue
-        if _is_zero(d):  # no mean-field component: the difference is D_p itself
-            diff[key] = fields[key]
-            continue
-        c = _proportional_fields(t, d)
-        if c is not None and c != 0.0:  # T = c D_s: D_p - D_p_mf = (1 - 1/c) D_p
-            diff[key] = (1.0 - 1.0 / c) * fields[key]
-        else:
-            todo[key] = rho_s * (np.asarray(t, dtype=float) - np.asarray(d, dtype=float))
-    if todo:
-        conv = _Convolutions(grid, kernel)
-        keys = {key: conv.request("diff_" + key, src, 2) for key, src in todo.items()}
-        res = conv.run()
-        diff.update({key: res[k] for key, k in keys.items()})
-    div = divergence(grid, diff)
-    for a in _COMPONENTS[grid.dims]:
-        fields[f"u_{a}"] = fields[f"u_{a}"] + div[a]
-
 
 def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: float = 0.5,
                     spot_diffusivity_tensor: Mapping | None = None,
@@ -602,7 +556,7 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
         fields = _general_fields(grid, rho_s, v_s, D_s, lam, conv, D_source)
         G = fields.pop("_G")
     if D_source is not None:
-        _keep_flux_velocity(grid, rho_s, D_s, D_source, kernel, fields)
+        _passage.keep_flux_velocity(grid, rho_s, D_s, D_source, kernel, fields)
 
     # wall layer of the reflecting side walls: (1 - 2 lam) int (D_s rho_s)^ab n_b w dA
     if grid.walls == "reflecting" and lam != 0.5:
@@ -800,24 +754,6 @@ def pair_diffusivity(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, r1, r2
     if diffusivity == "passage":
         from . import _passage
 
-        p1, p2 = _as_point(grid, r1, "r1"), _as_point(grid, r2, "r2")
-        mid = 0.5 * (p1 + p2)
-        comps = _COMPONENTS[grid.dims]
-        coords = grid.coords()
-        cell = tuple(int(np.argmin(np.abs(coords[c] - mid[comps.index(c)]))) for c in grid.axes)
-        D_s = spot_diffusivity(grid, spots, spot_diffusivity_tensor)
-        at = {k: float(np.asarray(v)[cell]) if np.ndim(v) else float(v) for k, v in D_s.items()}
-        v_s = float(np.asarray(spots.drift)[cell]) if np.ndim(spots.drift) else float(spots.drift)
-        if any(at[k] != 0.0 for k in at if k in ("D_xz", "D_xy", "D_yz")):
-            raise ValueError("diffusivity: 'passage' needs a diagonal spot diffusivity; pass "
-                             "diffusivity='mean-field' for a general tensor")
-        flux = float(np.asarray(rho_s)[cell]) * v_s
-        sep = tuple(np.array([d]) for d in (p1 - p2))
-        b, b_par = at["D_xx"] / v_s, at["D_zz"] / v_s
-        Bp = _passage.length_tensor(kernel, b, b_par, lam, separation=sep)
-        Bm = _passage.length_tensor(kernel, b, b_par, lam, diffusivity="mean-field",
-                                    separation=sep)
-        for key in out:
-            t = key[2:]
-            out[key] += kernel.V1 * flux * float(Bp[t][0] - Bm[t][0])
+        _passage.add_pair_correction(grid, rho_s, spots, kernel, r1, r2,
+                                     spot_diffusivity_tensor, lam, out)
     return out
