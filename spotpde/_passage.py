@@ -416,10 +416,16 @@ def source_tensor(grid, spots, D_s, kernel, lam) -> dict:
         be = effective_spot_length(kernel, float(b), float(b_par), lam)
         xx, zz = be["xx"], be["zz"]
     else:
-        b, b_par = np.broadcast_arrays(b, b_par)
-        ub, ib = np.unique(b, return_inverse=True)      # interpolate on distinct values only
-        up, ip = np.unique(b_par, return_inverse=True)
-        ib, ip = ib.reshape(b.shape), ip.reshape(b.shape)
+        shape = np.broadcast_shapes(np.shape(b), np.shape(b_par))
+
+        def distinct(a):  # interpolate on distinct values only
+            if np.ndim(a) == 0:
+                return np.array([float(a)]), np.zeros(shape, dtype=np.intp)
+            u, i = np.unique(a, return_inverse=True)
+            return u, np.broadcast_to(i.reshape(np.shape(a)), shape)
+
+        ub, ib = distinct(b)
+        up, ip = distinct(b_par)
         if ub.size * up.size <= _DIRECT:
             table = np.empty((ub.size, up.size, 2))
             for i, bb in enumerate(ub):
