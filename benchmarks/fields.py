@@ -32,7 +32,7 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
-from _timing import best_time
+from _timing import best_time, best_times
 from scipy.linalg import solve_banded
 from scipy.signal import fftconvolve
 from scipy.special import erf
@@ -54,10 +54,11 @@ def case(n: int):
     return grid, orifice, spots, kernel, 0.5
 
 
-def spotpde_fields(grid, orifice, spots, kernel, rule):
+def spotpde_fields(grid, orifice, spots, kernel, rule, diffusivity="mean-field"):
     rho_s = spot_density.steady(grid, orifice, spots)
     # the SciPy reference below truncates the kernel at the walls (kernel.walls = "truncate")
-    fields = coefficients.particle_fields(grid, rho_s, spots, kernel, rule=rule, walls="truncate")
+    fields = coefficients.particle_fields(grid, rho_s, spots, kernel, rule=rule,
+                                          diffusivity=diffusivity, walls="truncate")
     v_kin = kinematic.speed(grid, orifice, float(spots.b)) * kernel.V1 * orifice.rate_at(0.0)
     return {"rho_s": rho_s, "v_kin": v_kin, **fields}
 
@@ -193,6 +194,31 @@ def main():
     for name in ("u_x", "u_z", "D_xx"):
         r = alone[name]
         print(f"  {name:6s} {np.abs(new[name] - r).max() / np.abs(r).max():10.2e}")
+    # the passage diffusivity against the mean field (the reference above is eq. Dp):
+    # the particle-field stage alone, same rho_s, calls interleaved (same machine load);
+    # the passage quadrature itself (once per kernel, b, b_par, rule; cached) timed apart
+    from spotpde.fields import _passage
+
+    rho_s, (g, o, sp, k, lam) = new["rho_s"], parts
+    _passage._CACHE.clear()
+    t_quad, _ = best_time(lambda: (_passage._CACHE.clear(),
+                                   _passage.effective_spot_length(k, float(sp.b), 0.0, lam)), 1)
+    t_mf, t_pa = best_times([
+        lambda: coefficients.particle_fields(g, rho_s, sp, k, rule=lam, diffusivity="mean-field"),
+        lambda: coefficients.particle_fields(g, rho_s, sp, k, rule=lam, diffusivity="passage"),
+    ], args.repeat)
+    print(f"particle_fields {grid.nz} x {grid.nx}: mean-field {t_mf:.3f} s, passage {t_pa:.3f} s, "
+          f"ratio passage / mean-field = {t_pa / t_mf:.3f}  (target <= 1.5); "
+          f"passage quadrature (once, cached) {t_quad:.3f} s")
+    # a b field (b = 1.3 + 0.3 cos(x / 10)): the passage tensor varies from cell to cell
+    X = np.broadcast_to(g.x[None, :], g.shape)
+    spb = Spots(drift=1.0, b=1.3 + 0.3 * np.cos(X / 10.0), b_par=0.0)
+    t_mf, t_pa = best_times([
+        lambda: coefficients.particle_fields(g, rho_s, spb, k, rule=lam, diffusivity="mean-field"),
+        lambda: coefficients.particle_fields(g, rho_s, spb, k, rule=lam, diffusivity="passage"),
+    ], args.repeat)
+    print(f"  with a b field: mean-field {t_mf:.3f} s, passage {t_pa:.3f} s, "
+          f"ratio {t_pa / t_mf:.3f}")
     # which one is right: both against the free-space slot solution, 4 d <= z <= 32 d
     # (the walls, >= 7 widths away there, change it by less than 1e-10)
     Z, X = grid.mesh()

@@ -49,7 +49,7 @@ def test_uniform_density_gives_local_fields_exactly(dims, make, rule):
     grid = Grid(dims, (-6.0, 6.0), (0.0, 12.0), 0.25 if dims == 2 else 0.5, walls="open")
     spots = Spots(drift=1.7, b=1.3, b_par=0.4)
     rho = np.full(grid.shape, 2.5)
-    f = C.particle_fields(grid, rho, spots, kernel, rule=rule)
+    f = C.particle_fields(grid, rho, spots, kernel, rule=rule, diffusivity="mean-field")
     inside = _interior(grid, kernel)
     assert inside.sum() > 10
     np.testing.assert_allclose(f["u_z"][inside], -kernel.V1 * 2.5 * 1.7, rtol=1e-12)
@@ -70,7 +70,7 @@ def test_full_spot_tensor_gives_full_particle_tensor():
     kernel = kernels.Gaussian(sigma=0.5, volume=0.05, dims=2)
     D = {"D_xx": 1.0, "D_xz": 0.3, "D_zz": 0.5}
     rho = np.full(grid.shape, 2.0)
-    f = C.particle_fields(grid, rho, Spots(), kernel, spot_diffusivity_tensor=D)
+    f = C.particle_fields(grid, rho, Spots(), kernel, spot_diffusivity_tensor=D, diffusivity="mean-field")
     inside = _interior(grid, kernel)
     for k, v in D.items():
         np.testing.assert_allclose(f[k][inside], kernel.V2 * 2.0 * v, rtol=1e-12)
@@ -101,7 +101,7 @@ def test_local_limit_converges_at_second_order(rule):
     errs = []
     for sigma in (0.3, 0.15, 0.075):
         kernel = kernels.Gaussian(sigma=sigma, volume=0.05, dims=2)
-        f = C.particle_fields(grid, rho, spots, kernel, rule=rule)
+        f = C.particle_fields(grid, rho, spots, kernel, rule=rule, diffusivity="mean-field")
         inside = _interior(grid, margin=4 * 0.3)
         e = max(np.abs(f["u_x"] / kernel.V1 - local_ux)[inside].max(),
                 np.abs(f["u_z"] / kernel.V1 - local_uz)[inside].max())
@@ -121,7 +121,7 @@ def test_variable_diffusivity_uses_divergence_not_gradient():
     """div(D_s rho_s) differs from D_s grad rho_s when D_s varies; the fields follow div."""
     grid, spots, rho, parts = _smooth_case()
     kernel = kernels.Gaussian(sigma=0.1, volume=0.05, dims=2)
-    f = C.particle_fields(grid, rho, spots, kernel, rule=1.0)
+    f = C.particle_fields(grid, rho, spots, kernel, rule=1.0, diffusivity="mean-field")
     inside = _interior(grid, margin=1.0)
     Z, X = grid.mesh()
     kx, kz = 2 * np.pi / 6.0, 2 * np.pi / 8.0
@@ -153,7 +153,7 @@ def test_point_orifice_fields_match_height_quadrature(rule):
     grid = Grid(2, (-24.0, 24.0), (0.0, 24.0), 0.125, walls="open")
     Z, X = grid.mesh()
     rho = Q0 / v_s * _gauss(X, 2 * b * Z)
-    f = C.particle_fields(grid, rho, Spots(drift=v_s, b=b, b_par=0.0), kernel, rule=rule)
+    f = C.particle_fields(grid, rho, Spots(drift=v_s, b=b, b_par=0.0), kernel, rule=rule, diffusivity="mean-field")
 
     def quad(fun, z, var_z):
         lo, hi = max(0.0, z - 12 * np.sqrt(var_z)), z + 12 * np.sqrt(var_z)
@@ -220,7 +220,7 @@ def test_wall_layer_matches_discrete_rule_at_reflecting_walls(rule):
     # the exact average below moves particles by the plain kernel W: the truncated
     # treatment (the renormalised one, W / phi, is checked the same way in test_walls.py)
     f = C.particle_fields(grid, np.full(grid.shape, rho0), Spots(drift=1.0, b=b), kernel,
-                          rule=rule, walls="truncate")
+                          rule=rule, walls="truncate", diffusivity="mean-field")
     k = grid.nz // 2
 
     def W(x):  # kernel integrated over z
@@ -253,7 +253,7 @@ def test_flux_velocity_and_defect_of_uniform_kernel_vanish_for_matched_rule():
     inside = _interior(grid, kernel, margin=2 * grid.spacing)
     defect = {}
     for lam in (0.5 * (1 + height), 0.5, 1.0):
-        f = C.particle_fields(grid, rho, spots, kernel, rule=lam)
+        f = C.particle_fields(grid, rho, spots, kernel, rule=lam, diffusivity="mean-field")
         defect[lam] = np.linalg.norm(C.incompressibility_defect(grid, f)[inside])
         flux = C.flux_velocity(grid, f)
         np.testing.assert_array_equal(flux["u_z"], f["u_z"])  # D_zz = D_xz = 0
@@ -279,7 +279,7 @@ def test_uniform_flow_correlation_equals_kernel_correlation(make):
             assert abs(c["C_xx"] - expect) < 2e-3, (r, c, expect)
             assert abs(c["C_zz"] - expect) < 2e-3
             assert c["C_xz"] == 0.0
-            d = C.pair_diffusivity(grid, rho, spots, kernel, r1, r2)
+            d = C.pair_diffusivity(grid, rho, spots, kernel, r1, r2, diffusivity="mean-field")
             Dp = kernel.V2 * 3.0 * 1.3
             assert abs(d["D_xx"] - 2 * Dp * (1 - expect)) < 5e-3 * Dp
     # far apart: (almost) no shared spots, (almost) no correlation
@@ -329,9 +329,9 @@ def test_constant_coefficient_path_equals_general_path(dims, rule):
               {"D_xx": 1.3, "D_yy": 0.9, "D_xz": 0.4, "D_yz": -0.2, "D_zz": 0.7})
     ones = np.ones(grid.shape)
     f1 = C.particle_fields(grid, rho, Spots(drift=1.4), kernel, rule=rule,
-                           spot_diffusivity_tensor=tensor)
+                           spot_diffusivity_tensor=tensor, diffusivity="mean-field")
     f2 = C.particle_fields(grid, rho, Spots(drift=1.4 * ones), kernel, rule=rule,
-                           spot_diffusivity_tensor={k: v * ones for k, v in tensor.items()})
+                           spot_diffusivity_tensor={k: v * ones for k, v in tensor.items()}, diffusivity="mean-field")
     for k in f1:
         np.testing.assert_allclose(f1[k], f2[k], rtol=0, atol=1e-13 * np.abs(f2[k]).max())
 
@@ -345,7 +345,7 @@ def test_3d_point_orifice_fields_are_symmetric():
     spots = Spots(drift=1.0, b=1.3, b_par=0.0)
     rho = spot_density.steady(grid, Orifice(x=0.0, width=3.0), spots)
     kernel = kernels.Uniform(radius=1.5, height=0.01, dims=3, aspect=1.2)
-    f = C.particle_fields(grid, rho, spots, kernel, rule=1.0)  # wall layers on all four walls
+    f = C.particle_fields(grid, rho, spots, kernel, rule=1.0, diffusivity="mean-field")  # wall layers on all four walls
     swap = (0, 2, 1)
     scale = np.abs(f["u_x"]).max()
     np.testing.assert_allclose(f["u_x"], np.transpose(f["u_y"], swap), atol=1e-12 * scale)
@@ -370,7 +370,7 @@ def test_diagonal_diffusivity_is_never_negative_where_spots_vanish():
     kernel = kernels.Uniform(radius=2.5, height=0.0024, dims=2)
     raw = convolve(rho_s * spots.D_perp, kernel.sample(grid.spacing, power=2)) * grid.cell_volume
     assert raw.min() < 0                       # the round-off this test is about is there
-    D_xx = C.particle_fields(grid, rho_s, spots, kernel)["D_xx"]
+    D_xx = C.particle_fields(grid, rho_s, spots, kernel, diffusivity="mean-field")["D_xx"]
     assert D_xx.min() >= 0
     # elsewhere the same field, to FFT round-off of the peak
     np.testing.assert_allclose(D_xx, raw, rtol=0, atol=1e-13 * raw.max())

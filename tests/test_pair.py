@@ -248,7 +248,6 @@ def test_bad_arguments_name_the_argument(kwargs, name):
 
 
 def test_passage_diffusivity_lengthens_the_cage_at_midpoint_rule():
-    pytest.importorskip("spotpde._passage")
     mf = pair.cage_breaking(DISK, 1.3, rule=0.5, diffusivity="mean-field")
     pa = pair.cage_breaking(DISK, 1.3, rule=0.5, diffusivity="passage")
     # B_passage / B_mf = 0.20 ... 0.30 between d and 2d: the cage lasts 2.5-5 times longer
@@ -395,7 +394,6 @@ def test_monte_carlo_cage_breaking_against_the_equation():
 
 @pytest.mark.slow
 def test_monte_carlo_rule_half_agrees_with_passage():
-    pytest.importorskip("spotpde._passage")
     from spotpde.pair import _mc as _pair_mc
 
     k = Uniform(radius=2.5, height=0.03)

@@ -69,7 +69,7 @@ def fakes(monkeypatch):
         return out
 
     def particle_fields(grid, rho_s, spots, kernel, rule=0.5, **options):
-        assert set(options) <= {"walls"}  # kernel.walls: "renormalise" or "truncate"
+        assert set(options) <= {"walls", "diffusivity"}  # kernel.walls, kernel.diffusivity
         calls.append(("coefficients.particle_fields", rule))
         return fields(grid, rho_s, kernel.V1, kernel.V2)
 

@@ -36,6 +36,8 @@ KERNEL_WALLS = ("renormalise", "truncate")
 #: Options of the tracer solver (``spotpde.tracer.solve``).
 LIMITERS = ("koren", "vanleer", "mc", "minmod", "weno5", "upwind")
 DIFFUSION_MODES = ("auto", "explicit", "implicit")
+#: ``kernel.diffusivity``: the discrete model's passage diffusivity, or the paper's eq. Dp.
+DIFFUSIVITIES = ("passage", "mean-field")
 
 #: Defaults of every key, table by table (docs/interface.md). ``None`` marks an optional key
 #: without a default. The ``tracer`` table itself is optional.
@@ -55,6 +57,7 @@ DEFAULTS: dict[str, dict[str, Any]] = {
     "pair": {"x": None, "z": None, "contact": 1.0, "separation": 2.0, "start": None,
              "spacing": None, "frames": 8},
 }
+DEFAULTS["kernel"]["diffusivity"] = "passage"
 RATE_TABLE_KEYS = {"times": None, "values": None}
 PROFILE_KEYS = {"x": None, "z": None, "values": None}
 #: ``orifice.noise``: log-normal Ornstein-Uhlenbeck modulation of Q0 (spotpde.noise)
@@ -144,6 +147,12 @@ class Case:
     def kernel_walls(self) -> str:
         """``kernel.walls``: ``"renormalise"`` (free volume conserved at walls) or ``"truncate"``."""
         return str(self.data["kernel"].get("walls", "renormalise"))
+
+    @property
+    def diffusivity(self) -> str:
+        """``kernel.diffusivity``: ``"passage"`` or ``"mean-field"`` (``"mean-field"`` for the
+        void model, whose fields are exact: a void never displaces a particle twice)."""
+        return "mean-field" if self.model == "void" else str(self.data["kernel"]["diffusivity"])
 
     @property
     def kernel(self):
@@ -674,6 +683,7 @@ class _Validator:
             "aspect": self.number("kernel.aspect", t["aspect"], gt=0, le=1000),
             "rule": self.number("kernel.rule", t["rule"], gt=0, le=1),
             "walls": self.choice("kernel.walls", t["walls"], KERNEL_WALLS),
+            "diffusivity": self.choice("kernel.diffusivity", t["diffusivity"], DIFFUSIVITIES),
         }
         if t["height"] is not None:
             out["height"] = self.number("kernel.height", t["height"], gt=0, le=1)

@@ -183,6 +183,7 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
         "V2": V2,
         "rule": float(case.rule),
         "kernel_walls": case.kernel_walls,
+        "diffusivity": case.diffusivity,
         "model": case.model,
         "dims": int(grid.dims),
         "spotpde_version": __version__,
@@ -212,7 +213,8 @@ def particle_fields(case: Case, rho_s: np.ndarray) -> dict[str, np.ndarray]:
     else:
         coefficients = importlib.import_module("spotpde.fields.coefficients")
         fields = coefficients.particle_fields(case.grid, rho_s, case.spots, case.kernel,
-                                              rule=case.rule, walls=case.kernel_walls)
+                                              rule=case.rule, diffusivity=case.diffusivity,
+                                              walls=case.kernel_walls)
     return {name: np.asarray(a, dtype=float) for name, a in fields.items()}
 
 

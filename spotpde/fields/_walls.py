@@ -143,13 +143,17 @@ def face_value(phi: np.ndarray, axis: int, side: int) -> np.ndarray:
 
 
 def renormalised_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: float, conv,
-                        phi: np.ndarray) -> dict[str, np.ndarray]:
+                        phi: np.ndarray, D_source: Mapping | None = None
+                        ) -> dict[str, np.ndarray]:
     """``u_p`` (without the wall layer) and ``D_p`` with every source divided by ``phi``.
 
     ``u_p = -w * (rho_s u_s / phi) + 2 lam w * (div(D_s rho_s) / phi)`` and
     ``D_p = w^2 * (rho_s D_s / phi^2)``; ``div`` by second-order grid differences of the
     un-renormalised ``D_s rho_s`` (as in the truncated fields). ``conv`` is the
     ``coefficients._Convolutions`` collector (one transform per source and stencil).
+    With ``D_source`` (the passage tensor ``T`` of ``_passage.source_tensor``) the
+    diffusivity sources are ``rho_s T / phi^2`` instead (``D_p = w^2 * (rho_s T / phi^2)``);
+    the drift's ``div(D_s rho_s)`` keeps the spot diffusivity.
     Also returns ``"_G"``: ``rho_s D_s^ab`` and ``"_phi"``: ``phi`` (the wall layer takes
     the face values of both, each extrapolated to third order: ``phi`` is smooth at a
     wall, ``1/phi`` much less so).
@@ -160,14 +164,14 @@ def renormalised_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: f
     inv = 1.0 / phi
     G, D_terms = {}, {}
     for key, d in D_s.items():
-        if _is_zero(d):
-            G[key] = None
+        G[key] = None if _is_zero(d) else rho_s * d
+        t = D_source.get(key, d) if D_source is not None else d
+        if _is_zero(t):
             continue
-        G[key] = rho_s * d
-        if np.ndim(d) == 0:
-            D_terms[key] = (float(d), conv.request("rho_phi2", rho_s * inv * inv, 2))
+        if np.ndim(t) == 0:
+            D_terms[key] = (float(t), conv.request("rho_phi2", rho_s * inv * inv, 2))
         else:
-            D_terms[key] = (1.0, conv.request(f"{key}_phi2", G[key] * inv * inv, 2))
+            D_terms[key] = (1.0, conv.request(f"{key}_phi2", rho_s * t * inv * inv, 2))
     div = divergence(grid, G)
     u_terms = {a: [] for a in comps}
     for a in comps:

@@ -371,7 +371,7 @@ def _plane_convolution(stencil: np.ndarray, planes, axis: int, out_shape) -> np.
 
 
 def _constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, lam: float,
-                     conv: _Convolutions) -> dict[str, np.ndarray]:
+                     conv: _Convolutions, D_source: Mapping | None = None) -> dict[str, np.ndarray]:
     """``u_p`` and ``D_p`` for constant ``v_s`` and ``D_s`` from one convolution per stencil.
 
     With constant coefficients ``w * div(D_s rho_s) = D_s^ab w * d_b rho_s``, and the
@@ -380,14 +380,16 @@ def _constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, la
     ghost planes only (:func:`_boundary_planes`). So ``w * rho_s~`` on the grid padded by
     one cell gives ``u_z``, every ``w * d_b rho_s`` and (``w**2`` proportional to ``w``, or one
     more transform) ``D_p``; the plane terms are cheap 1D/2D convolutions. Identical to
-    the general path to round-off.
+    the general path to round-off. ``D_source`` (default ``D_s``): the constant tensor
+    ``T`` of ``D_p = w^2 * (rho_s T)`` (the passage diffusivity's ``v_s b_eff``).
     """
     comps = _COMPONENTS[grid.dims]
     h = grid.spacing
     hd = h**grid.dims
     rho_p = np.pad(rho_s, 1)
     inner = tuple(_inner_all(grid.dims))
-    need_D = any(not _is_zero(d) for d in D_s.values())
+    D_src = D_s if D_source is None else D_source
+    need_D = any(not _is_zero(d) for d in D_src.values())
     k1 = conv.request("rho_padded", rho_p, 1)
     k2 = conv.request("rho_padded", rho_p, 2) if need_D else None
     res = conv.run()
@@ -408,18 +410,19 @@ def _constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, la
             w_grad = (delta - corr)[inner]
             for a, d in coeffs.items():
                 fields[f"u_{a}"] += 2.0 * lam * float(d) * w_grad
-    for key, d in D_s.items():
+    for key, d in D_src.items():
         fields[key] = float(d) * res[k2][inner] if not _is_zero(d) else np.zeros(grid.shape)
     return fields
 
 
 def _general_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: float,
-                    conv: _Convolutions) -> dict[str, np.ndarray]:
+                    conv: _Convolutions, D_source: Mapping | None = None) -> dict[str, np.ndarray]:
     """``u_p`` and ``D_p`` for coefficients that vary in space: one transform per source.
 
     Sources ``rho_s D_s^ab`` (for ``D_p``), ``div(D_s rho_s)`` (second-order grid
     differences) and ``rho_s v_s`` are convolved with ``w**2`` or ``w``; constant factors
     are pulled out of the convolutions. Also returns ``"_G"``: the ``rho_s D_s^ab`` arrays.
+    ``D_source`` (default ``D_s``): the tensor ``T`` of ``D_p = w^2 * (rho_s T)``.
     """
     comps = _COMPONENTS[grid.dims]
     G = {}  # rho_s D_s^ab as arrays (None when identically zero)
@@ -429,10 +432,30 @@ def _general_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: float
             G[key] = None
             continue
         G[key] = rho_s * d
+        if D_source is not None:
+            continue
         if np.ndim(d) == 0:
             D_terms[key] = (float(d), conv.request("rho", rho_s, 2))
         else:
             D_terms[key] = (1.0, conv.request(key, G[key], 2))
+    diff_terms = {}  # passage drift: w^2 * (rho_s (T - D_s)) where not a multiple of D_p
+    if D_source is not None:  # D_p from another tensor than the drift's D_s
+        from . import _passage
+
+        names = {}
+        for key, d in D_source.items():
+            if _is_zero(d):
+                continue
+            if np.ndim(d) == 0:
+                D_terms[key] = (float(d), conv.request("rho", rho_s, 2))
+            else:  # identical arrays (D_yy = D_xx) share one transform
+                name = names.setdefault(id(d), "src_" + key)
+                D_terms[key] = (1.0, conv.request(name, rho_s * d, 2))
+            ds = D_s.get(key, 0.0)
+            if _is_zero(ds) or _passage.proportional(d, ds) is not None:
+                continue
+            name = names.setdefault((id(d), id(ds)), "diff_" + key)
+            diff_terms[key] = conv.request(name, rho_s * (d - ds), 2)
 
     # u_p = -w * (rho_s u_s) + 2 lam w * div(D_s rho_s), div on the grid; a constant v_s
     # multiplies the convolution w * rho_s
@@ -461,6 +484,8 @@ def _general_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: float
         else:
             fields[key] = np.zeros(grid.shape)
     fields["_G"] = G
+    if diff_terms:
+        fields["_diff"] = {key: res[k] for key, k in diff_terms.items()}
     return fields
 
 
@@ -468,14 +493,16 @@ def _general_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: float
 
 def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: float = 0.5,
                     spot_diffusivity_tensor: Mapping | None = None, *,
-                    walls: str = "renormalise", mask: np.ndarray | None = None
-                    ) -> dict[str, np.ndarray]:
+                    diffusivity: str = "passage", walls: str = "renormalise",
+                    mask: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """Particle drift ``u_p`` and diffusivity ``D_p`` of the spot model.
 
     Implements (docs/conventions.md section 2, derivation in docs/coefficients.md)::
 
         u_p = - w * (rho_s u_s - 2 lam div(D_s rho_s)) + (1 - 2 lam) wall layer
-        D_p =   w^2 * (rho_s D_s)
+        D_p =   w^2 * (rho_s D_s)                  (diffusivity="mean-field")
+        D_p =   w^2 * (rho_s v_s b_eff(b, b_par))   (diffusivity="passage", default;
+                                                     u_p += div(D_p - D_p_mf))
 
     with ``u_s = v_s z_hat``, ``*`` the linear (zero-padded) convolution over the silo
     (no spots outside it), ``div`` second-order differences on the grid (one-sided at the
@@ -493,6 +520,13 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
             printed eq. up).
         spot_diffusivity_tensor: optional full spot diffusivity tensor (keys ``D_xx``,
             ``D_xz``, ...; floats or grid arrays) replacing ``diag(D_perp, D_par)``.
+        diffusivity: ``"passage"`` (default): the discrete model's own diffusivity, exact
+            in uniform flow (passage correlations and shot noise, ``spotpde._passage``;
+            ``b_eff`` the diagonal tensor of ``_passage.effective_spot_length``
+            at the source point's ``b``, ``b_par``; docs/coefficients.md, "Beyond mean
+            field"); ``"mean-field"``: the paper's eq. Dp. The drift differs by
+            ``div(D_p - D_p_mf)``, so that the probability-flux velocity ``u_p - div D_p``
+            (the mean particle flow, exact in the mean field) is the same for both.
         walls: ``"renormalise"`` (default): a spot's influence is divided by the fraction
             ``phi`` of its kernel inside the material, so every spot step displaces the
             particle volume ``V1 dR`` and the particle flux through every height is
@@ -511,20 +545,33 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
     comps = _COMPONENTS[grid.dims]
     v_s = spots.drift
 
+    if diffusivity not in ("passage", "mean-field"):
+        raise ValueError(f"diffusivity: must be 'passage' or 'mean-field', got {diffusivity!r}")
+    D_source = None
+    if diffusivity == "passage":
+        from . import _passage
+
+        D_source = _passage.source_tensor(grid, spots, D_s, kernel, lam)
+
     conv = _Convolutions(grid, kernel)
     phi = None
     constant = np.ndim(v_s) == 0 and all(np.ndim(d) == 0 for d in D_s.values())
+    if D_source is not None:
+        constant = constant and all(np.ndim(d) == 0 for d in D_source.values())
     if _walls.renormalises(grid, walls):
         # free-volume-conserving walls: sources divided by phi (u_p) and phi^2 (D_p)
-        fields = _walls.renormalised_fields(grid, rho_s, v_s, D_s, lam, conv,
-                                            _walls.coverage(grid, kernel, mask))
-        G, phi = fields.pop("_G"), fields.pop("_phi")
+        phi = _walls.coverage(grid, kernel, mask)
+        fields = _walls.renormalised_fields(grid, rho_s, v_s, D_s, lam, conv, phi, D_source)
+        G = fields.pop("_G")
+        fields.pop("_phi")
     elif constant and min(grid.shape) >= 3:
-        fields = _constant_fields(grid, rho_s, float(v_s), D_s, lam, conv)
+        fields = _constant_fields(grid, rho_s, float(v_s), D_s, lam, conv, D_source)
         G = {key: None if _is_zero(d) else rho_s * d for key, d in D_s.items()}
     else:
-        fields = _general_fields(grid, rho_s, v_s, D_s, lam, conv)
+        fields = _general_fields(grid, rho_s, v_s, D_s, lam, conv, D_source)
         G = fields.pop("_G")
+    if D_source is not None:
+        _passage.keep_flux_velocity(grid, rho_s, D_s, D_source, kernel, fields, phi)
 
     # wall layer of the reflecting side walls: (1 - 2 lam) int (D_s rho_s)^ab n_b w dA
     if grid.walls == "reflecting" and lam != 0.5:
@@ -691,20 +738,39 @@ def velocity_correlation(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, r1
 
 
 def pair_diffusivity(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, r1, r2,
-                     spot_diffusivity_tensor: Mapping | None = None) -> dict[str, float]:
+                     spot_diffusivity_tensor: Mapping | None = None, *, rule: float = 0.5,
+                     diffusivity: str = "passage") -> dict[str, float]:
     """Diffusivity tensor of the separation ``r1 - r2`` of two tracer particles.
 
-    ``D^ab(r1, r2) = D_p^ab(r1) + D_p^ab(r2) - 2 X^ab(r1, r2)`` with ``X`` the cross
-    integral of :func:`velocity_correlation` (the paper's section "Relative Diffusion of
-    Two Tracers"); in uniform flow ``D^aa = 2 D_p^aa (1 - C_p^aa(r))``.
+    Mean field (``diffusivity="mean-field"``): ``D^ab(r1, r2) = D_p^ab(r1) + D_p^ab(r2) -
+    2 X^ab(r1, r2)`` with ``X`` the cross integral of :func:`velocity_correlation` (the
+    paper's section "Relative Diffusion of Two Tracers"); in uniform flow
+    ``D^aa = 2 D_p^aa (1 - C_p^aa(r))``.
+
+    Passage (default): the mean field plus the passage correction of the discrete model
+    in locally uniform flow, ``V1 f (B_passage(Delta) - B_mean-field(Delta))`` with
+    ``Delta = r1 - r2``, ``B`` the relative tensor of ``spotpde._passage.length_tensor``
+    and ``f = rho_s v_s``, ``b``, ``b_par`` taken at the cell of the midpoint (exact in
+    uniform flow; docs/coefficients.md section 7).
 
     Args:
         grid, rho_s, spots, kernel, r1, r2, spot_diffusivity_tensor: as in
             :func:`velocity_correlation`.
+        rule: ``lam`` (used by the passage correction only).
+        diffusivity: ``"passage"`` (default) or ``"mean-field"``.
 
     Returns:
         ``{"D_xx": ..., "D_xz": ..., ...}`` in d**2 per unit time.
     """
+    if diffusivity not in ("passage", "mean-field"):
+        raise ValueError(f"diffusivity: must be 'passage' or 'mean-field', got {diffusivity!r}")
+    lam = _check_rule(rule)
     X, X1, X2 = _two_point_integrals(grid, rho_s, spots, kernel, r1, r2,
                                      spot_diffusivity_tensor)
-    return {k: X1[k] + X2[k] - 2.0 * X[k] for k in DIFFUSIVITY_KEYS[grid.dims]}
+    out = {k: X1[k] + X2[k] - 2.0 * X[k] for k in DIFFUSIVITY_KEYS[grid.dims]}
+    if diffusivity == "passage":
+        from . import _passage
+
+        _passage.add_pair_correction(grid, rho_s, spots, kernel, r1, r2,
+                                     spot_diffusivity_tensor, lam, out)
+    return out

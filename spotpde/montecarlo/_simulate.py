@@ -593,71 +593,52 @@ def spot_walks(b: float, step: float, n_walks: int, n_steps: int, gamma: float =
 # What the discrete model predicts in uniform flow (docs/montecarlo.md, section 4)
 # ---------------------------------------------------------------------------------------
 def uniform_flow_prediction(kernel, b: float, flux: float, rule: float = 0.5,
-                            resolution: int = 16, cutoff: float = CUTOFF) -> dict:
+                            resolution: int = 16, cutoff: float = CUTOFF,
+                            b_par: float = 0.0) -> dict:
     """Lagrangian drift and diffusivities of the discrete model in uniform flow.
 
-    Uniform flow: spots cross each height at ``flux = rho_s v_s`` per unit length and unit
-    time (``Q0 / W``), straight up on average, ``b_par = 0``. For small steps
+    Uniform flow: spots cross each height at ``flux = rho_s v_s`` per unit length (area in
+    3D) and unit time (``Q0 / W``), straight up on average. For small steps
     (``Delta -> 0``) the displacement of a particle by one passing spot is the stochastic
-    integral ``X_lam = -int w(r - s - lam dR) dx`` along the spot path; passages are
-    independent, so ``D = flux/2 <X^2>`` (averaged over the spot's horizontal offset).
-    Derivation in docs/montecarlo.md:
+    integral ``Y = -int w(r - s) o_lam ds`` along the spot path; passages are independent,
+    so ``D = flux/2 <Y Y>`` (averaged over the spot's horizontal offset). Derivation in
+    docs/montecarlo.md section 4 and docs/coefficients.md ("Beyond mean field"); the
+    numbers come from the one quadrature of ``spotpde._passage.length_tensor``:
 
     * ``u_z = -V1 flux`` (the continuum's ``-V1 rho_s v_s``);
-    * ``D_xx = flux b V2 - lam (1 - lam) flux/2 E[Y^2]``, with the mean-field
-      (continuum) value ``flux b V2 = V2 rho_s D_s``, exact for ``lam`` = 0 and 1, and the
-      correction ``E[Y^2] = 4 b^2 int dk/2pi k^2 int int w^(k,z) w^(k,z')
-      exp(-b k^2 |z - z'|) dz dz'`` from the correlation between the Ito part and the
-      ``lam``-part of one passage (``w^`` the Fourier transform of ``w`` in x);
-    * ``D_zz = flux/2 int dk/2pi int int w^ w^ exp(-b k^2|z - z'|)``: shot noise of the
-      Poisson spot passages, absent from the mean-field ``D_p`` (which is 0 when
-      ``b_par = 0``).
-
-    The correction needs a smooth kernel; for the sharp uniform kernel it depends on the
-    step size and is returned as NaN unless ``rule`` is 0 or 1.
+    * ``D_xx = flux b V2 - lam (1 - lam) flux/2 E[Y^2]``: the mean field, exact for
+      ``lam`` = 0 and 1, minus the passage correlation (``E[Y^2]`` finite for every kernel,
+      the sharp disk and sphere included);
+    * ``D_zz``: with ``b_par = 0`` the shot noise of the Poisson passages,
+      ``flux/2 E[Z^2]``, absent from the mean-field ``D_p``.
 
     Args:
-        kernel: a ``spotpde.kernels`` kernel (2D).
-        b: spot diffusion length in d. flux: ``rho_s v_s`` in spots / (d time).
-        rule: lam. resolution: samples per kernel size in the quadrature.
+        kernel: a ``spotpde.kernels`` kernel (2D or 3D).
+        b: spot diffusion length in d. flux: ``rho_s v_s`` in spots / (d^(dims-1) time).
+        rule: lam. b_par: vertical spot diffusion length in d.
+        resolution, cutoff: ignored (kept for old callers; the quadrature sets its own
+            resolution, docs/coefficients.md).
 
     Returns:
         dict with ``u_z``, ``D_xx``, ``D_xx_meanfield``, ``D_zz``, ``b_p``,
-        ``b_p_meanfield`` (``= b V2 / V1``), ``b_p_par``, ``EY2``, ``EZ2``.
+        ``b_p_meanfield`` (``= b V2 / V1``), ``b_p_par``, ``EY2``, ``EZ2``
+        (``E[Y^2]`` and ``E[Z^2]`` integrated over the offset, in d**(dims+1)).
     """
-    kp = kernel_params(kernel, cutoff)
-    hx = kp.size / resolution
-    hz = kp.size_v / resolution
-    nx = int(2 ** math.ceil(math.log2(4.0 * kp.reach[0] / hx)))
-    x = (np.arange(nx) - nx // 2) * hx
-    z = np.arange(-kp.reach[1], kp.reach[1] + 0.5 * hz, hz)
-    w = kernel_evaluate(kp, x[None, :], z[:, None])
-    what = np.real(np.fft.rfft(np.fft.ifftshift(w, axes=1), axis=1)) * hx  # w is even in x
-    k = 2.0 * np.pi * np.fft.rfftfreq(nx, hx)
-    dzabs = np.abs(z[:, None] - z[None, :])
-    I = np.empty(k.size)
-    for j in range(k.size):
-        v = what[:, j]
-        I[j] = v @ np.exp(-b * k[j] ** 2 * dzabs) @ v * hz * hz
-    weight = np.full(k.size, 2.0)
-    weight[0] = 1.0
-    if nx % 2 == 0:
-        weight[-1] = 1.0
-    dk = 2.0 * np.pi / (nx * hx)
-    EZ2 = float(np.sum(weight * I) * dk / (2.0 * np.pi))
-    EY2 = float(4.0 * b * b * np.sum(weight * k * k * I) * dk / (2.0 * np.pi))
+    from ..fields import _passage
+
     lam = float(rule)
-    D_mf = flux * b * kp.V2
-    corr = lam * (1.0 - lam)
-    if kp.shape == K.SHAPE_UNIFORM and corr != 0.0:
-        D_xx = math.nan
-    else:
-        D_xx = D_mf - corr * 0.5 * flux * EY2
-    u_z = -kp.V1 * flux
-    D_zz = 0.5 * flux * EZ2
-    return {"u_z": u_z, "D_xx": D_xx, "D_xx_meanfield": D_mf, "D_zz": D_zz,
-            "b_p": D_xx / abs(u_z), "b_p_meanfield": b * kp.V2 / kp.V1,
-            "b_p_par": D_zz / abs(u_z), "EY2": EY2, "EZ2": EZ2}
+    V1, V2 = float(kernel.V1), float(kernel.V2)
+    bp = _passage.length_tensor(kernel, b, b_par, lam)
+    mid = bp if lam == 0.5 else _passage.length_tensor(kernel, b, b_par, 0.5)
+    b_mf = b * V2 / V1
+    EY2 = 8.0 * V1 * (b_mf - mid["xx"])
+    u_z = -V1 * flux
+    D_xx = V1 * flux * bp["xx"]
+    D_zz = V1 * flux * bp["zz"]
+    EZ2 = 2.0 * V1 * (bp["zz"] - b_par * V2 / V1)
+    return {"u_z": u_z, "D_xx": D_xx, "D_xx_meanfield": flux * b * V2, "D_zz": D_zz,
+            "b_p": bp["xx"], "b_p_meanfield": b_mf, "b_p_par": bp["zz"], "EY2": EY2,
+            "EZ2": EZ2}
 
 
 # ---------------------------------------------------------------------------------------
