@@ -289,7 +289,9 @@ def test_particle_fields_variable_b_uses_the_local_length():
     rho = np.full(g.shape, 0.2)
     X = np.broadcast_to(g.x[None, :], g.shape)
     bf = np.where(X < 0.0, 0.8, 1.6)
-    f = C.particle_fields(g, rho, Spots(drift=1.0, b=bf), kernel, rule=0.5)
+    # truncated walls: renormalised sources within a kernel reach of the walls at +-12 d
+    # would feel phi < 1 at x = +-8 (docs/walls.md); this test is about the local tensor
+    f = C.particle_fields(g, rho, Spots(drift=1.0, b=bf), kernel, rule=0.5, walls="truncate")
     k = g.shape[0] // 2
     for x0, b in ((-8.0, 0.8), (8.0, 1.6)):
         i = int(np.argmin(np.abs(g.x - x0)))
@@ -297,7 +299,8 @@ def test_particle_fields_variable_b_uses_the_local_length():
         assert f["D_xx"][k, i] / (kernel.V1 * 0.2) == pytest.approx(want["xx"], rel=1e-6)
         assert f["D_zz"][k, i] / (kernel.V1 * 0.2) == pytest.approx(want["zz"], rel=1e-6)
     smooth = 1.0 + 0.5 * np.sin(X / 3.0) ** 2
-    fs = C.particle_fields(g, rho, Spots(drift=1.0, b=smooth), kernel, rule=0.5)
+    fs = C.particle_fields(g, rho, Spots(drift=1.0, b=smooth), kernel, rule=0.5,
+                           walls="truncate")
     sp = Spots(drift=1.0, b=smooth)
     src = P.source_tensor(g, sp, C.spot_diffusivity(g, sp), kernel, 0.5)
     i = int(np.argmin(np.abs(g.x - 2.0)))

@@ -56,7 +56,7 @@ def add_to_result(case, ds):
 
     b = at_point(case.spots.b)
     b_par = at_point(case.spots.b_par)
-    diffusivity = case.data["kernel"].get("diffusivity", "mean-field")
+    diffusivity = case.diffusivity
     start = p.get("start")
     if isinstance(start, dict):
         start = (start["x"], start["z"])
