@@ -94,14 +94,17 @@ def cmd_check(args) -> int:
     return EXIT_OK
 
 
-def _estimate(case, allow_long: bool) -> None:
-    """Print the tracer run-time estimate; refuse (CaseError) a run over a day."""
+def _estimate(case, allow_long: bool, quiet: bool = False) -> None:
+    """Print the tracer run-time estimate (unless ``quiet``); refuse (CaseError) a run over a
+    day."""
     from . import estimate
     try:
         est = estimate.case_estimate(case)
     except Exception:      # the run itself reports what is wrong with the fields
         est = None
-    if est is not None:
+    if quiet:
+        pass
+    elif est is not None:
         _say(f"spotpde: {estimate.describe(est)}")
     elif case.tracer is not None and case.tracer.t_end == float("inf"):
         _say("spotpde: tracer: t_end = inf: the geometrical propagator by one sparse solve")
@@ -122,7 +125,7 @@ def cmd_run(args) -> int:
         fig = Path(args.plot) if args.plot else out.with_suffix(".png")
     _check_outputs([("output.path", out, None), ("--plot", fig, FIGURE_FORMATS)],
                    inputs=[args.case])
-    _estimate(case, args.allow_long)
+    _estimate(case, args.allow_long, args.quiet)
     progress = None if args.quiet else Progress()
     t0 = time.monotonic()
     try:
