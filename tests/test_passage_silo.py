@@ -28,7 +28,7 @@ from spotpde.density import spot_density
 from spotpde.fields import coefficients
 from spotpde.montecarlo import mcstats
 
-SEEDS = range(1, 9)
+SEEDS = range(1, 13)
 STEP = 0.05
 
 
@@ -51,7 +51,9 @@ ZBINS = np.array([10.0, 20.0, 35.0, 55.0])   # start heights: converging ... plu
 
 
 def silo_case():
-    case = spotpde.load_case(str(Path(__file__).resolve().parent.parent / "cases" / "montecarlo_layers.toml"))
+    """``cases/montecarlo_layers.toml`` on a 0.5 d grid."""
+    path = Path(__file__).resolve().parent.parent / "cases" / "montecarlo_layers.toml"
+    case = spotpde.load_case(str(path))
     data = copy.deepcopy(case.data)
     data["domain"]["spacing"] = 0.5
     return spotpde.load_case(data)
@@ -75,7 +77,9 @@ def _interp(grid, f):
 
 
 def predicted(grid, fields, p0, tau, n=24):
-    """Mean paths from ``p0`` (N, 2) and the variance ``s2`` of the horizontal deviation."""
+    """Mean paths from ``p0`` (N, 2), in d, after ``tau`` (case time units), and the
+    continuum's variance ``s2`` (d**2) of the horizontal deviation from them:
+    ``dr/dt = u_p``, ``d s2/dt = 2 (d u_x/dx) s2 + 2 D_xx`` (Heun, ``n`` steps)."""
     dudx = np.gradient(fields["u_x"], grid.spacing, axis=1)
     f = [_interp(grid, a) for a in (fields["u_x"], fields["u_z"], dudx, fields["D_xx"])]
 
@@ -175,6 +179,7 @@ def test_silo_particle_bp_matches_passage_fields_not_mean_field():
     assert mean_field[-1] == pytest.approx(w_b, rel=0.02)
     # the Monte Carlo agrees with the passage fields in every bin (3 replica SE)
     assert np.all(np.abs(z_p) < 3.0), z_p
-    # and rejects the mean field by more than 4 SE where the flow is resolved
-    # (z > 20 d; next to the slot, 10-20 d, 8 replicas give about 3 SE: not asserted)
+    # and rejects the mean field by more than 4 SE in the two upper bins (z > 20 d). Next
+    # to the slot (10-20 d) the expected separation with 12 replicas is about 3.6 SE
+    # (4.2 with 16 seeds, docs/montecarlo.md section 10): printed, not asserted
     assert np.all(z_m[1:] < -4.0), z_m
