@@ -377,3 +377,16 @@ def test_particle_sets():
     d, _ = cKDTree(L).query(L, k=2)
     assert d[:, 1] == pytest.approx(1.0)
     assert np.array_equal(mc.layer_mask([0.0, 2.9, 3.0, 6.5], 6.0), [True, True, False, True])
+
+
+def test_loop_parameters_are_one_typed_record():
+    """The numba loop's constants: a named tuple of floats then ints (one signature)."""
+    from spotpde.montecarlo import _mc_kernels as K
+
+    values = {name: 1 for name in K.Params._fields}
+    prm = K.make_params(**values)
+    assert type(prm.x0) is float and type(prm.dt) is float and type(prm.ncx) is int
+    assert type(prm.probes) is int
+    del values["dt"]
+    with pytest.raises(TypeError, match="dt"):
+        K.make_params(**values)

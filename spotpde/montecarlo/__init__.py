@@ -6,12 +6,19 @@ every step of every spot; :func:`measure`, :func:`propagator`, :func:`particle_f
 fields comparable with the continuum's; :func:`uniform_flow_prediction` and
 :func:`spot_walks` are the closed-form predictions it is checked against.
 See docs/montecarlo.md.
+
+Private modules: ``_simulate`` (run, result, kernel reduction), ``_mc_kernels`` (the
+numba loop and its :class:`~spotpde.montecarlo._mc_kernels.Params`), ``_particles``
+(particle sets), ``_measure`` (fields and statistics of a run), ``_predict`` (closed
+forms).
 """
 
-from ._simulate import (CUTOFF, STEPS, KernelParams, MCResult, blob, displacement_statistics,
-                        from_case, kernel_evaluate, kernel_params, lattice, layer_mask,
-                        measure, particle_frames, propagator, random_packing, simulate,
-                        spot_walks, uniform_flow_prediction, velocity_correlation)
+from ._measure import (displacement_statistics, measure, particle_frames, propagator,
+                       velocity_correlation)
+from ._particles import blob, lattice, layer_mask, random_packing
+from ._predict import spot_walks, uniform_flow_prediction
+from ._simulate import (CUTOFF, STEPS, KernelParams, MCResult, from_case, kernel_evaluate,
+                        kernel_params, simulate)
 
 __all__ = ["CUTOFF", "STEPS", "KernelParams", "MCResult", "blob", "displacement_statistics",
            "from_case", "kernel_evaluate", "kernel_params", "lattice", "layer_mask", "measure",

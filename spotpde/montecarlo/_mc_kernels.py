@@ -1,38 +1,100 @@
 """Numba kernels of the discrete spot-model Monte Carlo (private; see ``montecarlo``).
 
-Everything here is 2D ``(x, z)``. State lives in plain arrays owned by
-:class:`spotpde.montecarlo._State`; :func:`advance` moves it forward by whole ticks so
-that the Python driver can report progress and stop between chunks.
-
-Packed parameters (``fp``: float64, ``ip``: int64), indices given by the constants below.
+Everything here is 2D ``(x, z)``, lengths in particle diameters d, times in the case's
+unit. State lives in plain arrays owned by :func:`spotpde.montecarlo.simulate`;
+:func:`advance` moves it forward by whole ticks so that the Python driver can report
+progress and stop between chunks. The run's constants come in one :class:`Params`
+(a typed named tuple: numba compiles it as a heterogeneous tuple, read by field name).
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple, get_type_hints
 
 import numpy as np
 from numba import njit
 
-# -- float parameters -------------------------------------------------------------------
-F_X0, F_X1, F_Z0, F_Z1 = 0, 1, 2, 3            # box
-F_XC, F_WIDTH, F_RATE = 4, 5, 6                # orifice centre, width, Q0 * dt (mean spots per tick)
-F_STEP, F_SIGX, F_SIGZ, F_GAMMA = 7, 8, 9, 10  # Delta, sqrt(2 b0 Delta), sqrt(2 b_par Delta), gamma
-F_LAM = 11                                     # rule lam
-F_KSIZE, F_KSIZEV, F_KAMP = 12, 13, 14         # kernel horizontal size, vertical size, amplitude
-F_REACHH, F_REACHV = 15, 16                    # kernel support half-widths (x, z)
-F_CELL, F_SKIN = 17, 18                        # particle cell size, skin
-F_PX0, F_PZ0, F_PH = 19, 20, 21                # probe grid origin (first centre) and spacing
-F_DT = 22                                      # time per tick
-F_TAB_X0, F_TAB_DX = 23, 24                    # wall coverage table: first node, spacing
-NF = 25
-# -- int parameters ---------------------------------------------------------------------
-I_SHAPE, I_PROFILE, I_WALLS, I_STEPS = 0, 1, 2, 3
-I_NCX, I_NCZ = 4, 5                            # particle cells
-I_PNX, I_PNZ = 6, 7                            # probe grid
-I_NBATCH, I_TICKS_TOTAL = 8, 9
-I_PROBES = 10                                  # 1: accumulate probe fields
-NI = 11
+
+class Params(NamedTuple):
+    """The constants of one run, as :func:`advance` reads them.
+
+    Build it with :func:`make_params` (which converts every field to ``float`` or
+    ``int``, so that numba compiles one signature only).
+
+    Attributes:
+        x0, x1, z0, z1: the box in d.
+        xc, width: orifice centre and width in d. rate: ``Q0 dt``, mean spots per tick.
+        step: vertical step Delta in d. sigx: ``sqrt(2 b0 Delta)``, sigz:
+            ``sqrt(2 b_par Delta)`` (d), the horizontal and vertical step scales.
+        gamma: correlation of successive horizontal steps. lam: the rule.
+        ksize, ksize_v, kamp: kernel horizontal and vertical size (d), centre value.
+        reach_h, reach_v: kernel support half-widths (x, z) in d.
+        cell, skin: particle cell size and skin in d.
+        probe_x0, probe_z0, probe_h: probe grid first centre and spacing in d.
+        dt: time per tick (``Delta / v_s``).
+        tab_x0, tab_dx: first node and spacing (d) of the wall coverage table.
+        shape: ``SHAPE_*``. profile: ``PROFILE_*``. walls: ``WALLS_*``. steps: ``STEPS_*``.
+        ncx, ncz: particle cells in x and z. pnx, pnz: probe grid points in x and z.
+        n_batch: time batches. ticks_total: ticks of the whole run.
+        probes: 1 to accumulate the probe fields, 0 not.
+    """
+
+    x0: float
+    x1: float
+    z0: float
+    z1: float
+    xc: float
+    width: float
+    rate: float
+    step: float
+    sigx: float
+    sigz: float
+    gamma: float
+    lam: float
+    ksize: float
+    ksize_v: float
+    kamp: float
+    reach_h: float
+    reach_v: float
+    cell: float
+    skin: float
+    probe_x0: float
+    probe_z0: float
+    probe_h: float
+    dt: float
+    tab_x0: float
+    tab_dx: float
+    shape: int
+    profile: int
+    walls: int
+    steps: int
+    ncx: int
+    ncz: int
+    pnx: int
+    pnz: int
+    n_batch: int
+    ticks_total: int
+    probes: int
+
+
+#: field name -> ``float`` or ``int``
+_FIELD_TYPES = get_type_hints(Params)
+
+
+def make_params(**values) -> Params:
+    """A :class:`Params` from keyword values, each converted to its field's type.
+
+    Raises:
+        TypeError: a field is missing or unknown (the message names it).
+    """
+    missing = [k for k in Params._fields if k not in values]
+    unknown = [k for k in values if k not in Params._fields]
+    if missing or unknown:
+        raise TypeError(f"make_params: missing {missing}, unknown {unknown}")
+    return Params(**{k: _FIELD_TYPES[k](values[k]) for k in Params._fields})
+
+
 # -- kernel shapes, orifice profiles, walls, step kinds -------------------------------------
 SHAPE_UNIFORM, SHAPE_GAUSSIAN, SHAPE_EXPONENTIAL = 0, 1, 2
 PROFILE_POINT, PROFILE_UNIFORM, PROFILE_GAUSSIAN = 0, 1, 2
@@ -126,7 +188,7 @@ def _inject_x(profile, xc, width):
 
 
 @njit(cache=True)
-def advance(fp, ip, cnt, n_ticks,
+def advance(prm, cnt, n_ticks,
             sx, sz, sxi,
             px, pz, status, moved, cell_start, cell_idx,
             track_slot, tpos, rec_ticks, levels, lev_next, cross_x, cross_t, exit_x, exit_t,
@@ -141,7 +203,7 @@ def advance(fp, ip, cnt, n_ticks,
     Returns early (with ``cnt[C_PENDING]`` set) when the spot arrays are full.
 
     Args:
-        fp, ip: packed parameters. cnt: counters (updated in place).
+        prm: the run's constants (:class:`Params`). cnt: counters (updated in place).
         sx, sz, sxi: spot positions and persistent unit step variable.
         px, pz, status, moved: particle positions, status, displacement since binning.
         cell_start, cell_idx: particle cell list.
@@ -159,20 +221,20 @@ def advance(fp, ip, cnt, n_ticks,
     Returns:
         Number of ticks done.
     """
-    x0 = fp[F_X0]; x1 = fp[F_X1]; z0 = fp[F_Z0]; z1 = fp[F_Z1]
-    xc = fp[F_XC]; width = fp[F_WIDTH]; rate = fp[F_RATE]
-    step = fp[F_STEP]; sigx = fp[F_SIGX]; sigz = fp[F_SIGZ]; gamma = fp[F_GAMMA]
-    lam = fp[F_LAM]
-    ksize = fp[F_KSIZE]; ksizev = fp[F_KSIZEV]; kamp = fp[F_KAMP]
-    rh = fp[F_REACHH]; rv = fp[F_REACHV]
-    cell = fp[F_CELL]; skin = fp[F_SKIN]
-    pxo = fp[F_PX0]; pzo = fp[F_PZ0]; ph = fp[F_PH]
-    dt = fp[F_DT]
-    tx0 = fp[F_TAB_X0]; tdx = fp[F_TAB_DX]
+    x0 = prm.x0; x1 = prm.x1; z0 = prm.z0; z1 = prm.z1
+    xc = prm.xc; width = prm.width; rate = prm.rate
+    step = prm.step; sigx = prm.sigx; sigz = prm.sigz; gamma = prm.gamma
+    lam = prm.lam
+    ksize = prm.ksize; ksizev = prm.ksize_v; kamp = prm.kamp
+    rh = prm.reach_h; rv = prm.reach_v
+    cell = prm.cell; skin = prm.skin
+    pxo = prm.probe_x0; pzo = prm.probe_z0; ph = prm.probe_h
+    dt = prm.dt
+    tx0 = prm.tab_x0; tdx = prm.tab_dx
     ntab = phi_tab.size
-    shape = ip[I_SHAPE]; profile = ip[I_PROFILE]; walls = ip[I_WALLS]; steps = ip[I_STEPS]
-    ncx = ip[I_NCX]; ncz = ip[I_NCZ]; pnx = ip[I_PNX]; pnz = ip[I_PNZ]
-    nbatch = ip[I_NBATCH]; ticks_total = ip[I_TICKS_TOTAL]; use_probes = ip[I_PROBES]
+    shape = prm.shape; profile = prm.profile; walls = prm.walls; steps = prm.steps
+    ncx = prm.ncx; ncz = prm.ncz; pnx = prm.pnx; pnz = prm.pnz
+    nbatch = prm.n_batch; ticks_total = prm.ticks_total; use_probes = prm.probes
     cap = sx.size
     fresh = math.sqrt(1.0 - gamma * gamma)
     keep_p = 0.5 * (1.0 + gamma)

@@ -24,14 +24,11 @@ Model (2D, ``(x, z)``, lengths in d; derivations and checks in ``docs/montecarlo
   moving: their time averages are the mean-field drift ``u_p`` and diffusivity ``D_p``
   exactly as the continuum defines them (mean over spots at a fixed point).
 
-Public functions: :func:`simulate` -> :class:`MCResult`; :func:`measure` -> an
-``xarray.Dataset`` with the continuum result's variable names; Lagrangian statistics
-:func:`displacement_statistics`, :func:`velocity_correlation`, :func:`propagator`,
-:func:`particle_frames`; particle sets :func:`lattice`, :func:`random_packing`,
-:func:`blob`, :func:`layer_mask`; :func:`from_case` to run a case file's parameters;
-:func:`spot_walks` for the walk alone; :func:`uniform_flow_prediction`, what the discrete
-model predicts in uniform flow beyond mean field (the midpoint rule diffuses less than the
-continuum ``D_p``; vertical shot noise).
+This module: :func:`simulate` (or :func:`from_case`, a case file's parameters) ->
+:class:`MCResult`; :func:`kernel_params` reduces a kernel to :class:`KernelParams`.
+Beside it: ``_mc_kernels`` (the numba loop), ``_particles`` (particle sets),
+``_measure`` (fields and Lagrangian statistics of a result), ``_predict`` (free spot
+walks and the uniform-flow prediction beyond mean field).
 """
 
 from __future__ import annotations
@@ -39,24 +36,19 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Callable
 
 import numpy as np
-import xarray as xr
 
 from . import _mc_kernels as K
-from .._version import __version__
 from ..grid import Grid
-from ..parameters import Orifice, Spots, in_bands
+from ..parameters import Orifice, Spots
+from ._particles import blob, lattice, random_packing
 
 STEPS = ("gaussian", "binary")
 
-__all__ = [
-    "MCResult", "simulate", "measure", "displacement_statistics", "velocity_correlation",
-    "propagator", "lattice", "random_packing", "blob", "from_case", "spot_walks",
-    "kernel_params", "kernel_evaluate", "layer_mask", "uniform_flow_prediction",
-    "particle_frames",
-]
+__all__ = ["STEPS", "CUTOFF", "KernelParams", "MCResult", "simulate", "from_case",
+           "kernel_params", "kernel_evaluate"]
 
 
 # ---------------------------------------------------------------------------------------
@@ -134,109 +126,6 @@ def kernel_evaluate(kp: KernelParams, x, z) -> np.ndarray:
     out = K.kernel_eval(kp.shape, np.ascontiguousarray(x), np.ascontiguousarray(z),
                         kp.size, kp.size_v, kp.amp, kp.reach[0], kp.reach[1])
     return out.reshape(x.shape)
-
-
-# ---------------------------------------------------------------------------------------
-# Particle sets
-# ---------------------------------------------------------------------------------------
-def _region(grid: Grid, region):
-    if region is None:
-        return grid.x_range[0], grid.x_range[1], grid.z_range[0], grid.z_range[1]
-    return tuple(float(v) for v in region)
-
-
-def lattice(grid: Grid, spacing: float = 1.0, kind: str = "triangular",
-            region: Sequence[float] | None = None) -> np.ndarray:
-    """Particles on a lattice filling the box (or ``region = (x0, x1, z0, z1)``).
-
-    Args:
-        grid: the silo (its box).
-        spacing: nearest-neighbour distance in d.
-        kind: ``"triangular"`` (rows ``spacing * sqrt(3)/2`` apart, alternate rows shifted
-            by half a spacing) or ``"square"``.
-        region: sub-box to fill.
-
-    Returns:
-        ``(N, 2)`` array of ``(x, z)`` in d.
-    """
-    if kind not in ("triangular", "square"):
-        raise ValueError(f"lattice kind: must be one of 'triangular', 'square', got {kind!r}")
-    x0, x1, z0, z1 = _region(grid, region)
-    dz = spacing * (math.sqrt(3.0) / 2.0 if kind == "triangular" else 1.0)
-    rows = np.arange(z0 + 0.5 * dz, z1, dz)
-    pts = []
-    for k, z in enumerate(rows):
-        shift = 0.5 * spacing * (k % 2) if kind == "triangular" else 0.0
-        xs = np.arange(x0 + 0.5 * spacing + shift, x1, spacing)
-        pts.append(np.column_stack([xs, np.full_like(xs, z)]))
-    return np.concatenate(pts) if pts else np.zeros((0, 2))
-
-
-def random_packing(grid: Grid, phi: float = 0.5, seed: int = 0,
-                   region: Sequence[float] | None = None, diameter: float = 1.0,
-                   max_tries: int = 20000) -> np.ndarray:
-    """Random sequential addition of non-overlapping disks of diameter ``diameter``.
-
-    Disks are tried at uniformly random positions until the area fraction ``phi`` is
-    reached (RSA jams near 0.547 in 2D: ask for less) or ``max_tries`` consecutive
-    failures per disk occur.
-
-    Returns:
-        ``(N, 2)`` array of centres ``(x, z)`` in d.
-    """
-    x0, x1, z0, z1 = _region(grid, region)
-    area = (x1 - x0) * (z1 - z0)
-    n_target = int(phi * area / (math.pi * diameter**2 / 4.0))
-    return _rsa(x0, x1, z0, z1, n_target, diameter, seed, max_tries)
-
-
-def _rsa(x0, x1, z0, z1, n_target, d, seed, max_tries):
-    rng = np.random.default_rng(seed)
-    cell = d / math.sqrt(2.0)  # at most one centre per cell
-    ncx = int(math.ceil((x1 - x0) / cell))
-    ncz = int(math.ceil((z1 - z0) / cell))
-    occ = -np.ones((ncz + 4, ncx + 4), np.int64)
-    pts = np.empty((n_target, 2))
-    n = 0
-    fails = 0
-    batch = 4096
-    while n < n_target and fails < max_tries:
-        cand = rng.random((batch, 2)) * [x1 - x0, z1 - z0] + [x0, z0]
-        for x, z in cand:
-            cx = int((x - x0) / cell) + 2
-            cz = int((z - z0) / cell) + 2
-            ok = occ[cz, cx] < 0
-            if ok:
-                block = occ[cz - 2:cz + 3, cx - 2:cx + 3]
-                idx = block[block >= 0]
-                if idx.size and np.any(np.sum((pts[idx] - (x, z)) ** 2, axis=1) < d * d):
-                    ok = False
-            if ok:
-                occ[cz, cx] = n
-                pts[n] = (x, z)
-                n += 1
-                fails = 0
-                if n == n_target:
-                    break
-            else:
-                fails += 1
-                if fails >= max_tries:
-                    break
-    return pts[:n].copy()
-
-
-def blob(x: float, z: float, width: float, n: int, seed: int = 0) -> np.ndarray:
-    """``n`` tracer particles drawn from a Gaussian blob (standard deviation ``width``).
-
-    The discrete counterpart of ``[tracer] start = {x, z, width}``.
-    """
-    rng = np.random.default_rng(seed)
-    return np.column_stack([x + width * rng.standard_normal(n), z + width * rng.standard_normal(n)])
-
-
-def layer_mask(z, spacing: float) -> np.ndarray:
-    """True for heights in the coloured bands ``[k s, k s + s/2)`` (the layered silo)."""
-    return in_bands(z, spacing)
 
 
 # ---------------------------------------------------------------------------------------
@@ -418,31 +307,24 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
     ncz = max(1, int(math.ceil((z1 - z0) / cell)))
     batches = max(1, min(int(batches), n_ticks))
 
-    fp = np.zeros(K.NF)
-    fp[[K.F_X0, K.F_X1, K.F_Z0, K.F_Z1]] = x0, x1, z0, z1
-    fp[[K.F_XC, K.F_WIDTH, K.F_RATE]] = orifice.x, orifice.width, Q0 * dt
-    fp[[K.F_STEP, K.F_SIGX, K.F_SIGZ, K.F_GAMMA]] = (
-        step, math.sqrt(2.0 * b0 * step), math.sqrt(2.0 * b_par * step), gamma)
-    fp[K.F_LAM] = rule
-    fp[[K.F_KSIZE, K.F_KSIZEV, K.F_KAMP]] = kp.size, kp.size_v, kp.amp
-    fp[[K.F_REACHH, K.F_REACHV]] = kp.reach
-    fp[[K.F_CELL, K.F_SKIN]] = cell, skin
-    fp[[K.F_PX0, K.F_PZ0, K.F_PH]] = grid.x[0], grid.z[0], grid.spacing
-    fp[K.F_DT] = dt
+    tab_x0, tab_dx = 0.0, 0.0
     phi_tab = np.zeros(0)
     if walls == "renormalise" and grid.walls == "reflecting":
         from ..fields._walls import coverage_table
 
         name = {c: n for n, c in _SHAPE_CODES.items()}[kp.shape]
-        fp[K.F_TAB_X0], fp[K.F_TAB_DX], phi_tab = coverage_table(
+        tab_x0, tab_dx, phi_tab = coverage_table(
             name, kp.size, kp.size_v, kp.amp, kp.reach, x0, x1)
-    ip = np.zeros(K.NI, np.int64)
-    ip[K.I_SHAPE] = kp.shape
-    ip[K.I_PROFILE] = profile
-    ip[K.I_WALLS] = K.WALLS_OPEN if grid.walls == "open" else K.WALLS_REFLECTING
-    ip[K.I_STEPS] = STEPS.index(steps)
-    ip[[K.I_NCX, K.I_NCZ, K.I_PNX, K.I_PNZ]] = ncx, ncz, grid.nx, grid.nz
-    ip[K.I_NBATCH], ip[K.I_TICKS_TOTAL], ip[K.I_PROBES] = batches, n_ticks, int(bool(probes))
+    prm = K.make_params(
+        x0=x0, x1=x1, z0=z0, z1=z1, xc=orifice.x, width=orifice.width, rate=Q0 * dt,
+        step=step, sigx=math.sqrt(2.0 * b0 * step), sigz=math.sqrt(2.0 * b_par * step),
+        gamma=gamma, lam=rule, ksize=kp.size, ksize_v=kp.size_v, kamp=kp.amp,
+        reach_h=kp.reach[0], reach_v=kp.reach[1], cell=cell, skin=skin,
+        probe_x0=grid.x[0], probe_z0=grid.z[0], probe_h=grid.spacing, dt=dt,
+        tab_x0=tab_x0, tab_dx=tab_dx, shape=kp.shape, profile=profile,
+        walls=K.WALLS_OPEN if grid.walls == "open" else K.WALLS_REFLECTING,
+        steps=STEPS.index(steps), ncx=ncx, ncz=ncz, pnx=grid.nx, pnz=grid.nz,
+        n_batch=batches, ticks_total=n_ticks, probes=int(bool(probes)))
 
     # particles
     if particles is None:
@@ -504,7 +386,7 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
         todo = min(chunk, n_ticks - cnt[K.C_TICK])
         t0 = time.perf_counter()
         c0 = time.process_time()
-        K.advance(fp, ip, cnt, todo, sx, sz, sxi, px, pz, status, moved, cell_start, cell_idx,
+        K.advance(prm, cnt, todo, sx, sz, sxi, px, pz, status, moved, cell_start, cell_idx,
                   track_slot, tpos, rec_ticks, levels, lev_next, cross_x, cross_t, exit_x, exit_t,
                   probe, rho_hist, phi_tab)
         wall += time.perf_counter() - t0
@@ -567,329 +449,3 @@ def from_case(case, *, particles="lattice", spacing: float = 1.0, **kwargs) -> M
         # a void moves one particle diameter per step, so it never displaces a particle twice
         kwargs.setdefault("step", 1.0)
     return simulate(grid, case.orifice, case.spots, case.kernel, particles=particles, **kwargs)
-
-
-def spot_walks(b: float, step: float, n_walks: int, n_steps: int, gamma: float = 0.0,
-               steps: str = "gaussian", seed: int = 0) -> np.ndarray:
-    """Horizontal positions of free spot walks (no walls), the step rule of :func:`simulate`.
-
-    Args:
-        b: long-distance diffusion length in d; the single-step one is
-            ``b0 = b (1 - gamma) / (1 + gamma)``.
-        step: vertical step Delta in d.
-        n_walks, n_steps: number of walks and steps.
-        gamma: step autocorrelation. steps: ``"gaussian"`` or ``"binary"``.
-        seed: random seed.
-
-    Returns:
-        ``(n_walks, n_steps)``: x after each step (height ``(n + 1) * step``).
-    """
-    b0 = b * (1.0 - gamma) / (1.0 + gamma)
-    return K.spot_walks(int(n_walks), int(n_steps), math.sqrt(2.0 * b0 * step), float(gamma),
-                        STEPS.index(steps), int(seed))
-
-
-# ---------------------------------------------------------------------------------------
-# What the discrete model predicts in uniform flow (docs/montecarlo.md, section 4)
-# ---------------------------------------------------------------------------------------
-def uniform_flow_prediction(kernel, b: float, flux: float, rule: float = 0.5,
-                            resolution: int = 16, cutoff: float = CUTOFF,
-                            b_par: float = 0.0) -> dict:
-    """Lagrangian drift and diffusivities of the discrete model in uniform flow.
-
-    Uniform flow: spots cross each height at ``flux = rho_s v_s`` per unit length (area in
-    3D) and unit time (``Q0 / W``), straight up on average. For small steps
-    (``Delta -> 0``) the displacement of a particle by one passing spot is the stochastic
-    integral ``Y = -int w(r - s) o_lam ds`` along the spot path; passages are independent,
-    so ``D = flux/2 <Y Y>`` (averaged over the spot's horizontal offset). Derivation in
-    docs/montecarlo.md section 4 and docs/coefficients.md ("Beyond mean field"); the
-    numbers come from the one quadrature of ``spotpde._passage.length_tensor``:
-
-    * ``u_z = -V1 flux`` (the continuum's ``-V1 rho_s v_s``);
-    * ``D_xx = flux b V2 - lam (1 - lam) flux/2 E[Y^2]``: the mean field, exact for
-      ``lam`` = 0 and 1, minus the passage correlation (``E[Y^2]`` finite for every kernel,
-      the sharp disk and sphere included);
-    * ``D_zz``: with ``b_par = 0`` the shot noise of the Poisson passages,
-      ``flux/2 E[Z^2]``, absent from the mean-field ``D_p``.
-
-    Args:
-        kernel: a ``spotpde.kernels`` kernel (2D or 3D).
-        b: spot diffusion length in d. flux: ``rho_s v_s`` in spots / (d^(dims-1) time).
-        rule: lam. b_par: vertical spot diffusion length in d.
-        resolution, cutoff: ignored (kept for old callers; the quadrature sets its own
-            resolution, docs/coefficients.md).
-
-    Returns:
-        dict with ``u_z``, ``D_xx``, ``D_xx_meanfield``, ``D_zz``, ``b_p``,
-        ``b_p_meanfield`` (``= b V2 / V1``), ``b_p_par``, ``EY2``, ``EZ2``
-        (``E[Y^2]`` and ``E[Z^2]`` integrated over the offset, in d**(dims+1)).
-    """
-    from ..fields import _passage
-
-    lam = float(rule)
-    V1, V2 = float(kernel.V1), float(kernel.V2)
-    bp = _passage.length_tensor(kernel, b, b_par, lam)
-    mid = bp if lam == 0.5 else _passage.length_tensor(kernel, b, b_par, 0.5)
-    b_mf = b * V2 / V1
-    EY2 = 8.0 * V1 * (b_mf - mid["xx"])
-    u_z = -V1 * flux
-    D_xx = V1 * flux * bp["xx"]
-    D_zz = V1 * flux * bp["zz"]
-    EZ2 = 2.0 * V1 * (bp["zz"] - b_par * V2 / V1)
-    return {"u_z": u_z, "D_xx": D_xx, "D_xx_meanfield": flux * b * V2, "D_zz": D_zz,
-            "b_p": bp["xx"], "b_p_meanfield": b_mf, "b_p_par": bp["zz"], "EY2": EY2,
-            "EZ2": EZ2}
-
-
-# ---------------------------------------------------------------------------------------
-# Measurements
-# ---------------------------------------------------------------------------------------
-def _da(data, grid, units, long_name, **attrs):
-    # CF: lengths in d and times in the case unit are pure numbers (units "1"; "d" would
-    # read as a day); the scale goes into the long name and spotpde_units
-    return xr.DataArray(data, dims=("z", "x"), attrs={
-        "units": "1", "long_name": f"{long_name}, in {units.replace('time', 'time unit')}",
-        "spotpde_units": units, **attrs})
-
-
-def measure(result: MCResult, tracer: bool = True) -> xr.Dataset:
-    """Fields of a run as an ``xarray.Dataset`` with the continuum result's names.
-
-    Probe fields (frozen particles at the grid's cell centres, time averages over the
-    run, each with a standard error ``*_se`` from the scatter of time batches):
-
-    * ``rho_s``: spot density (spots per d**2);
-    * ``u_x``, ``u_z``: mean particle drift ``u_p`` (d per unit time);
-    * ``D_xx``, ``D_xz``, ``D_zz``: ``(1/2T) sum w**2 (dR - <dR>)(dR - <dR>)^T``, the
-      mean-field particle diffusivity of the continuum (d**2 per unit time).
-
-    With tracked particles, ``tracer=True`` and the default crossing levels (``grid.z``):
-    ``P_height`` (density over x of where the tracked particles first cross each height,
-    normalised by their number). For other levels call :func:`propagator`.
-
-    Attributes: ``V1``, ``V2``, ``rule``, ``gamma``, ``step``, ``t_end``, ``seed``,
-    counters and performance, ``spotpde_version``, ``source = "montecarlo"``.
-    """
-    g = result.grid
-    coords = {"z": ("z", g.z, {"units": "1", "long_name": "height above the orifice, in particle diameters"}),
-              "x": ("x", g.x, {"units": "1", "long_name": "horizontal position, in particle diameters"})}
-    ds = xr.Dataset(coords=coords)
-    if result.probe is not None:
-        bt = result.batch_ticks.astype(float) * result.dt  # duration of each batch
-        ok = bt > 0
-        per = result.probe[:, ok] / bt[ok][None, :, None, None]
-        nb = per.shape[1]
-        mean = result.probe.sum(axis=1) / result.t_end
-        se = per.std(axis=1, ddof=1) / math.sqrt(nb) if nb > 1 else np.full_like(mean, np.nan)
-        names = [("u_x", "d / time", "particle drift u_p, x component"),
-                 ("u_z", "d / time", "particle drift u_p, z component"),
-                 ("D_xx", "d**2 / time", "particle diffusivity D_p, xx"),
-                 ("D_xz", "d**2 / time", "particle diffusivity D_p, xz"),
-                 ("D_zz", "d**2 / time", "particle diffusivity D_p, zz")]
-        for k, (name, units, ln) in enumerate(names):
-            f = 1.0 if k < 2 else 0.5
-            ds[name] = _da(f * mean[k], g, units, ln + " (Monte Carlo probes)")
-            ds[name + "_se"] = _da(f * se[k], g, units, "standard error of " + name)
-        h2 = g.spacing**2
-        rb = result.rho_hist[ok] / (result.batch_ticks[ok][:, None, None] * h2)
-        ds["rho_s"] = _da(result.rho_hist.sum(axis=0) / (result.n_ticks * h2), g, "1 / d**2",
-                          "spot density (Monte Carlo)")
-        ds["rho_s_se"] = _da(rb.std(axis=0, ddof=1) / math.sqrt(nb) if nb > 1
-                             else np.full(g.shape, np.nan), g, "1 / d**2",
-                             "standard error of rho_s")
-    same_levels = (result.levels.size == g.nz and np.allclose(result.levels, g.z))
-    if tracer and result.tracked.size and same_levels:
-        ds["P_height"] = propagator(result).assign_coords(z=g.z, x=g.x)
-    kp = result.kernel
-    ds.attrs.update({
-        "V1": kp.V1, "V2": kp.V2, "rule": result.rule, "gamma": result.gamma,
-        "step": result.step, "t_end": result.t_end, "seed": result.seed,
-        "steps": result.steps, "source": "montecarlo", "spotpde_version": __version__,
-        "kernel_walls": result.walls,
-        **{k: v for k, v in result.counters.items()},
-        **{k: v for k, v in result.performance.items()},
-    })
-    return ds
-
-
-def particle_frames(result: MCResult, layer_spacing: float | None = None) -> xr.Dataset:
-    """Tracked particle positions as a Dataset on dims ``("t", "particle")``.
-
-    Frame 0 is the initial state (``t = 0``), then one frame per snapshot. With
-    ``layer_spacing`` a boolean ``layer`` variable marks particles that started in the
-    coloured bands ``[k s, k s + s/2)`` (the layered-silo picture, docs/interface.md, ``tracer.layers``),
-    so the discrete layered silo is ``plt.scatter(f.x[k], f.z[k], c=f.layer)``.
-    """
-    start = result.initial[result.tracked]
-    pos = np.concatenate([start[None], result.positions], axis=0)
-    t = np.concatenate([[0.0], result.times])
-    ds = xr.Dataset(
-        {"x": (("t", "particle"), pos[..., 0], {"units": "1", "long_name": "particle x (NaN: gone), in particle diameters"}),
-         "z": (("t", "particle"), pos[..., 1], {"units": "1", "long_name": "particle z (NaN: gone), in particle diameters"})},
-        coords={"t": ("t", t, {"units": "1", "long_name": "time, in the case's time unit"}),
-                "particle": ("particle", result.tracked)})
-    if layer_spacing is not None:
-        ds["layer"] = ("particle", layer_mask(start[:, 1], layer_spacing),
-                       {"units": "1", "long_name": f"started in a coloured band (spacing {layer_spacing} d)"})
-    return ds
-
-
-def propagator(result: MCResult, select: np.ndarray | None = None) -> xr.DataArray:
-    """Geometrical propagator ``P_height`` of the tracked particles.
-
-    At each crossing level (``result.levels``; by default the grid's cell centres), the
-    density over x of where the selected tracked particles first fell through it: a
-    histogram over the grid's x cells divided by (number of particles * h). Its integral
-    over x is the fraction that reached that height.
-
-    Args:
-        result: a run with tracked particles.
-        select: boolean mask over the tracked particles (default all).
-    """
-    g = result.grid
-    cx = result.cross_x if select is None else result.cross_x[np.asarray(select)]
-    n = max(cx.shape[0], 1)
-    edges = np.concatenate([g.x - 0.5 * g.spacing, [g.x[-1] + 0.5 * g.spacing]])
-    out = np.zeros((result.levels.size, g.nx))
-    for k in range(result.levels.size):
-        v = cx[:, k]
-        v = v[np.isfinite(v)]
-        out[k] = np.histogram(v, bins=edges)[0] / (n * g.spacing)
-    return xr.DataArray(out, dims=("z", "x"),
-                        coords={"z": ("z", result.levels, {"units": "1", "long_name": "in particle diameters"}), "x": ("x", g.x, {"units": "1", "long_name": "in particle diameters"})},
-                        attrs={"units": "1", "spotpde_units": "1 / d", "long_name":
-                               "geometrical propagator: density over x of first crossings of height z "
-                               "(Monte Carlo), per particle diameter", "n_particles": int(cx.shape[0])})
-
-
-def _windows(result: MCResult, select=None):
-    """Displacement increments of tracked particles between consecutive snapshots.
-
-    Returns (dx, dz, tau, start) with dx, dz of shape (n_windows, n_tracked) (NaN where a
-    particle was gone at either end), tau the window durations, start the positions at
-    each window's start (n_windows, n_tracked, 2).
-    """
-    pos = np.concatenate([result.initial[result.tracked][None], result.positions], axis=0)
-    times = np.concatenate([[0.0], result.times])
-    if select is not None:
-        pos = pos[:, np.asarray(select)]
-    d = pos[1:] - pos[:-1]
-    return d[..., 0], d[..., 1], np.diff(times), pos[:-1]
-
-
-def displacement_statistics(result: MCResult, select=None, skip: int = 0) -> dict:
-    """Lagrangian drift, diffusivities and diffusion lengths of the tracked particles.
-
-    Windows are the intervals between snapshots. In each window ``k`` the mean over
-    particles of ``dx``, ``dz`` and of the centred squares gives ``U_k``, ``D_k``; the
-    results are the window averages and their standard errors (windows are nearly
-    independent when long compared with a spot's passage). Intended for uniform flow
-    (spatially uniform statistics).
-
-    Args:
-        result: a run with tracked particles and several snapshots.
-        select: boolean mask over tracked particles (e.g. away from walls).
-        skip: number of initial windows to drop (transient).
-
-    Returns:
-        dict with ``u_x``, ``u_z`` (d/time), ``D_xx``, ``D_zz``, ``D_xz`` (d**2/time),
-        ``b_p = D_xx / |u_z|`` and ``b_p_par = D_zz / |u_z|`` (d), each with ``*_se``,
-        and ``n_windows``, ``n_particles``.
-    """
-    dx, dz, tau, _ = _windows(result, select)
-    dx, dz, tau = dx[skip:], dz[skip:], tau[skip:]
-    ok = np.isfinite(dx) & np.isfinite(dz)
-    keep = ok.all(axis=0)
-    dx, dz = dx[:, keep], dz[:, keep]
-    ux = dx.mean(axis=1) / tau
-    uz = dz.mean(axis=1) / tau
-    mx = dx.mean()  # the drift is common to all windows when tau is constant
-    mz = dz.mean()
-    Dxx = ((dx - mx) ** 2).mean(axis=1) / (2 * tau)
-    Dzz = ((dz - mz) ** 2).mean(axis=1) / (2 * tau)
-    Dxz = ((dx - mx) * (dz - mz)).mean(axis=1) / (2 * tau)
-    n = ux.size
-    out = {"n_windows": n, "n_particles": int(keep.sum())}
-    for name, v in (("u_x", ux), ("u_z", uz), ("D_xx", Dxx), ("D_zz", Dzz), ("D_xz", Dxz)):
-        out[name] = float(v.mean())
-        out[name + "_se"] = float(v.std(ddof=1) / math.sqrt(n)) if n > 1 else math.nan
-    # ratios with jackknife errors over windows
-    for name, num in (("b_p", Dxx), ("b_p_par", Dzz)):
-        est = num.mean() / abs(uz.mean())
-        if n > 2:
-            jk = np.array([np.delete(num, i).mean() / abs(np.delete(uz, i).mean()) for i in range(n)])
-            se = math.sqrt((n - 1) / n * np.sum((jk - jk.mean()) ** 2))
-        else:
-            se = math.nan
-        out[name] = float(est)
-        out[name + "_se"] = float(se)
-    return out
-
-
-def velocity_correlation(result: MCResult, bins: np.ndarray, select=None, component: str = "x",
-                         skip: int = 0, centre: str = "ensemble") -> xr.Dataset:
-    """Spatial correlation of tracked particles' displacement fluctuations.
-
-    ``C(r) = <dq_i dq_j> / <dq**2>`` over pairs whose separation at the window's start
-    falls in each bin, the discrete counterpart of the continuum ``C_p(r)`` (eq. Cp).
-    ``dq`` is the displacement component minus the mean drift of the whole run (mean
-    rate over all windows and particles, times the window's duration). Standard errors
-    from the scatter over windows (make windows longer than a spot's passage, ``2R/v_s``).
-
-    ``centre="window"`` subtracts each window's own mean over its ``N`` particles instead;
-    that removes the common displacement the particles share and biases ``C`` low by about
-    ``2/N sum_k C(r_ik)`` (-0.02 to -0.04 for 150 particles on a 1.5 d lattice with a
-    Gaussian kernel of sigma 1): kept only to show the bias.
-
-    Args:
-        bins: separation bin edges in d.
-        select: boolean mask over tracked particles. component: ``"x"`` or ``"z"``.
-        skip: number of initial windows to drop.
-        centre: ``"ensemble"`` (default, unbiased) or ``"window"``.
-
-    Returns:
-        Dataset with ``C`` and ``C_se`` on dim ``r`` (the mean separation of the pairs in
-        each bin, d) and ``pairs``; bins with pairs in fewer than two windows (no
-        standard error) are left out.
-    """
-    if centre not in ("ensemble", "window"):
-        raise ValueError(f"centre: must be 'ensemble' or 'window', got {centre!r}")
-    dx, dz, tau, start = _windows(result, select)
-    d = (dx if component == "x" else dz)[skip:]
-    tau = tau[skip:]
-    start = start[skip:]
-    with np.errstate(invalid="ignore"):
-        rate = float(np.nanmean(d / tau[:, None]))
-    bins = np.asarray(bins, float)
-    nbin = bins.size - 1
-    per = np.full((d.shape[0], nbin), np.nan)
-    pairs = np.zeros(nbin, np.int64)
-    rsum = np.zeros(nbin)
-    for k in range(d.shape[0]):
-        ok = np.isfinite(d[k])
-        q = d[k, ok] - (d[k, ok].mean() if centre == "window" else rate * tau[k])
-        p = start[k, ok]
-        var = np.mean(q * q)
-        iu, ju = np.triu_indices(q.size, 1)
-        r = np.hypot(*(p[iu] - p[ju]).T)
-        which = np.digitize(r, bins) - 1
-        good = (which >= 0) & (which < nbin)
-        prod = q[iu][good] * q[ju][good] / var
-        s = np.bincount(which[good], weights=prod, minlength=nbin)
-        c = np.bincount(which[good], minlength=nbin)
-        per[k] = np.where(c > 0, s / np.maximum(c, 1), np.nan)
-        pairs += c
-        rsum += np.bincount(which[good], weights=r[good], minlength=nbin)
-    n = np.sum(np.isfinite(per), axis=0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        C = np.array([np.mean(c[np.isfinite(c)]) if m else np.nan for c, m in zip(per.T, n)])
-        se = np.array([np.std(c[np.isfinite(c)], ddof=1) / math.sqrt(m) if m > 1 else np.nan
-                       for c, m in zip(per.T, n)])
-        rc = np.where(pairs > 0, rsum / np.maximum(pairs, 1), np.nan)
-    keep = n >= 2   # pairs in at least two windows: a mean and a standard error
-    C, se, pairs, rc = C[keep], se[keep], pairs[keep], rc[keep]
-    return xr.Dataset(
-        {"C": ("r", C, {"units": "1", "long_name": f"velocity correlation C_p ({component}), Monte Carlo"}),
-         "C_se": ("r", se, {"units": "1", "long_name": "standard error of C"}),
-         "pairs": ("r", pairs, {"units": "1", "long_name": "pair samples per bin"})},
-        coords={"r": ("r", rc, {"units": "1", "long_name": "separation, in particle diameters"})})

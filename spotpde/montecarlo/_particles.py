@@ -1,0 +1,118 @@
+"""Particle sets for the discrete spot-model Monte Carlo (private; see ``montecarlo``).
+
+Initial positions ``(N, 2)`` of ``(x, z)`` in particle diameters d: :func:`lattice`,
+:func:`random_packing` (random sequential addition), :func:`blob` (a Gaussian tracer
+blob), and :func:`layer_mask` (the layered silo's coloured bands).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import numpy as np
+
+from ..grid import Grid
+from ..parameters import in_bands
+
+__all__ = ["lattice", "random_packing", "blob", "layer_mask"]
+
+
+def _region(grid: Grid, region):
+    if region is None:
+        return grid.x_range[0], grid.x_range[1], grid.z_range[0], grid.z_range[1]
+    return tuple(float(v) for v in region)
+
+
+def lattice(grid: Grid, spacing: float = 1.0, kind: str = "triangular",
+            region: Sequence[float] | None = None) -> np.ndarray:
+    """Particles on a lattice filling the box (or ``region = (x0, x1, z0, z1)``).
+
+    Args:
+        grid: the silo (its box).
+        spacing: nearest-neighbour distance in d.
+        kind: ``"triangular"`` (rows ``spacing * sqrt(3)/2`` apart, alternate rows shifted
+            by half a spacing) or ``"square"``.
+        region: sub-box to fill.
+
+    Returns:
+        ``(N, 2)`` array of ``(x, z)`` in d.
+    """
+    if kind not in ("triangular", "square"):
+        raise ValueError(f"lattice kind: must be one of 'triangular', 'square', got {kind!r}")
+    x0, x1, z0, z1 = _region(grid, region)
+    dz = spacing * (math.sqrt(3.0) / 2.0 if kind == "triangular" else 1.0)
+    rows = np.arange(z0 + 0.5 * dz, z1, dz)
+    pts = []
+    for k, z in enumerate(rows):
+        shift = 0.5 * spacing * (k % 2) if kind == "triangular" else 0.0
+        xs = np.arange(x0 + 0.5 * spacing + shift, x1, spacing)
+        pts.append(np.column_stack([xs, np.full_like(xs, z)]))
+    return np.concatenate(pts) if pts else np.zeros((0, 2))
+
+
+def random_packing(grid: Grid, phi: float = 0.5, seed: int = 0,
+                   region: Sequence[float] | None = None, diameter: float = 1.0,
+                   max_tries: int = 20000) -> np.ndarray:
+    """Random sequential addition of non-overlapping disks of diameter ``diameter``.
+
+    Disks are tried at uniformly random positions until the area fraction ``phi`` is
+    reached (RSA jams near 0.547 in 2D: ask for less) or ``max_tries`` consecutive
+    failures per disk occur.
+
+    Returns:
+        ``(N, 2)`` array of centres ``(x, z)`` in d.
+    """
+    x0, x1, z0, z1 = _region(grid, region)
+    area = (x1 - x0) * (z1 - z0)
+    n_target = int(phi * area / (math.pi * diameter**2 / 4.0))
+    return _rsa(x0, x1, z0, z1, n_target, diameter, seed, max_tries)
+
+
+def _rsa(x0, x1, z0, z1, n_target, d, seed, max_tries):
+    rng = np.random.default_rng(seed)
+    cell = d / math.sqrt(2.0)  # at most one centre per cell
+    ncx = int(math.ceil((x1 - x0) / cell))
+    ncz = int(math.ceil((z1 - z0) / cell))
+    occ = -np.ones((ncz + 4, ncx + 4), np.int64)
+    pts = np.empty((n_target, 2))
+    n = 0
+    fails = 0
+    batch = 4096
+    while n < n_target and fails < max_tries:
+        cand = rng.random((batch, 2)) * [x1 - x0, z1 - z0] + [x0, z0]
+        for x, z in cand:
+            cx = int((x - x0) / cell) + 2
+            cz = int((z - z0) / cell) + 2
+            ok = occ[cz, cx] < 0
+            if ok:
+                block = occ[cz - 2:cz + 3, cx - 2:cx + 3]
+                idx = block[block >= 0]
+                if idx.size and np.any(np.sum((pts[idx] - (x, z)) ** 2, axis=1) < d * d):
+                    ok = False
+            if ok:
+                occ[cz, cx] = n
+                pts[n] = (x, z)
+                n += 1
+                fails = 0
+                if n == n_target:
+                    break
+            else:
+                fails += 1
+                if fails >= max_tries:
+                    break
+    return pts[:n].copy()
+
+
+def blob(x: float, z: float, width: float, n: int, seed: int = 0) -> np.ndarray:
+    """``n`` tracer particles drawn from a Gaussian blob (standard deviation ``width``).
+
+    The discrete counterpart of ``[tracer] start = {x, z, width}``.
+    """
+    rng = np.random.default_rng(seed)
+    return np.column_stack([x + width * rng.standard_normal(n), z + width * rng.standard_normal(n)])
+
+
+def layer_mask(z, spacing: float) -> np.ndarray:
+    """True for heights in the coloured bands ``[k s, k s + s/2)`` (the layered silo)."""
+    return in_bands(z, spacing)
