@@ -38,14 +38,14 @@ from ..parameters import PROFILES, Orifice
 __all__ = [
     "source_profile",
     "rate_from_table",
-    "validate",
+    "check_orifice",
     "cosine_coefficients",
     "is_uniform_flow",
 ]
 
 
 # -- validation and rates -------------------------------------------------------------
-def validate(grid: Grid, orifice: Orifice) -> None:
+def check_orifice(grid: Grid, orifice: Orifice) -> None:
     """Raise :class:`CaseError` naming every invalid orifice key.
 
     Args:
@@ -200,7 +200,7 @@ def source_profile(grid: Grid, orifice: Orifice) -> np.ndarray:
         with ``s.sum() * h**(dims-1) == 1`` to round-off. The injection flux density
         through floor cell ``i`` is ``Q0(t) * s[i]``.
     """
-    validate(grid, orifice)
+    check_orifice(grid, orifice)
     h, n, lo = grid.spacing, grid.nx, grid.x_range[0]
     measure = grid.horizontal_cell_measure
     if is_uniform_flow(grid, orifice):
@@ -257,7 +257,7 @@ def cosine_coefficients(grid: Grid, orifice: Orifice, n_modes: int | None = None
         ``a`` of shape ``(n,)`` (2D) or ``(n, n)`` (3D, array order ``(y, x)``), in
         d**-(dims-1), ``n = n_modes``.
     """
-    validate(grid, orifice)
+    check_orifice(grid, orifice)
     n, L = (n_modes or grid.nx), grid.x_range[1] - grid.x_range[0]
     k = np.pi * np.arange(n) / L
     c = np.where(np.arange(n) == 0, 1.0, 2.0) / L

@@ -42,16 +42,16 @@ import numpy as np
 from . import _elliptic, _marching, _spectral, _transient
 from ..errors import CaseError
 from ..grid import Grid
-from .orifice import source_profile, validate as validate_orifice
+from .orifice import check_orifice, source_profile
 from ..parameters import SPOT_MODES, Orifice, Spots
 
-__all__ = ["steady", "transient", "solve", "validate", "pad_cells"]
+__all__ = ["steady", "transient", "solve", "check_spots", "pad_cells"]
 
 Progress = Callable[[float], None] | None
 
 
 # -- validation -------------------------------------------------------------------------
-def validate(grid: Grid, spots: Spots) -> None:
+def check_spots(grid: Grid, spots: Spots) -> None:
     """Raise :class:`CaseError` naming every invalid ``spots`` key.
 
     Args:
@@ -147,8 +147,8 @@ def steady(grid: Grid, orifice: Orifice, spots: Spots, progress: Progress = None
         average over each cell's horizontal extent (exact for uniform ``b``; finite-volume
         cell values otherwise).
     """
-    validate(grid, spots)
-    validate_orifice(grid, orifice)
+    check_spots(grid, spots)
+    check_orifice(grid, orifice)
     if spots.rho_max is not None:
         raise CaseError('spots.rho_max: interacting spots have no steady solver; use '
                         'spots.mode = "transient" (spotpde.traffic)')
@@ -204,8 +204,8 @@ def transient(grid: Grid, orifice: Orifice, spots: Spots, t_end: float, times=No
         ``times``, ``frames``, ``outflow`` and ``inflow`` (spots per unit time through
         the top and the orifice at each frame), ``dt`` and ``steps``.
     """
-    validate(grid, spots)
-    validate_orifice(grid, orifice)
+    check_spots(grid, spots)
+    check_orifice(grid, orifice)
     if not (np.isfinite(t_end) and t_end > 0):
         raise CaseError(f"spots.t_end: must be > 0 for a transient run, got {t_end!r}")
     if spots.rho_max is not None:          # interacting spots: the nonlinear solver
@@ -252,7 +252,7 @@ def solve(grid: Grid, orifice: Orifice, spots: Spots, progress: Progress = None)
     Returns:
         ``rho_s`` (grid shape, spots per d**dims): steady, or at ``t = spots.t_end``.
     """
-    validate(grid, spots)
+    check_spots(grid, spots)
     if spots.mode == "steady":
         return steady(grid, orifice, spots, progress)
     return transient(grid, orifice, spots, spots.t_end, progress=progress)

@@ -39,7 +39,7 @@ import numpy as np
 from . import _traffic
 from ._traffic import FLUXES, LIMITERS, FluxShape, flux_from_name
 from ..grid import Grid
-from .orifice import source_profile, validate as validate_orifice
+from .orifice import check_orifice, source_profile
 from ..parameters import Orifice, Spots
 
 __all__ = ["FLUXES", "FluxShape", "flux_from_name", "transient", "free_volume",
@@ -87,8 +87,8 @@ def transient(grid: Grid, orifice: Orifice, spots: Spots, t_end: float, times=No
     if spots.diffusion_scaling not in DIFFUSION_SCALINGS:
         raise ValueError(f"spots.diffusion_scaling: must be one of {DIFFUSION_SCALINGS}, "
                          f"got {spots.diffusion_scaling!r}")
-    spot_density.validate(grid, spots)
-    validate_orifice(grid, orifice)
+    spot_density.check_spots(grid, spots)
+    check_orifice(grid, orifice)
     frame_times = np.array([t_end], float) if times is None else np.sort(np.asarray(times, float))
     if frame_times.size and (frame_times[0] < 0 or frame_times[-1] > t_end * (1 + 1e-12)):
         raise ValueError(f"times: must lie in [0, {t_end}]")

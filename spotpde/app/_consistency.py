@@ -1,0 +1,150 @@
+"""Cross-key consistency of a case whose tables passed their per-key checks.
+
+One function, :func:`check_consistency`, records every problem between keys on the
+validator of :mod:`._schema`, each naming the key to change:
+
+* the grid: ``domain.z`` starts at the floor ``z = 0``; ``domain.spacing`` h divides
+  each extent into at least 4 whole cells (at most 1e9);
+* the orifice lies on the floor ``domain.x`` (the whole slot ``[x - width/2,
+  x + width/2]`` for a uniform profile; ``orifice.y`` only in 3D, on the same extent);
+  a Gaussian profile needs ``width > 0``; a uniform slot is a point (0) or at least h;
+* time-dependent inputs (a rate table, ``orifice.noise``, ``spots.rho_max``) need
+  ``spots.mode = "transient"`` with ``spots.t_end > 0``, a steady run has ``t_end = 0``;
+* a uniform kernel's influence ``w = volume / (spot area or volume) <= 1``;
+  ``kernel.height`` only for the uniform shape;
+* the tracer: ``t_end = inf`` only for steady spots, ``snapshots`` only for transient
+  ones, a start blob inside the domain and at least h wide, layer bands of at least 2 h
+  and less than twice the height;
+* ``[pair]``: a 2D domain, the point inside it.
+
+Lengths in particle diameters d, times in the case's time unit.
+"""
+
+from __future__ import annotations
+
+import math
+
+from ._schema import _ellipsoid_measure, _show, _Validator
+
+
+def check_consistency(v: _Validator, data: dict) -> None:
+    """Record on ``v`` every inconsistency between the keys of ``data``.
+
+    Args:
+        v: the validator whose ``bad`` collects the problems.
+        data: the mapping returned by ``v.tables`` (every table passed its own checks).
+    """
+    d, o, s, k = data["domain"], data["orifice"], data["spots"], data["kernel"]
+    dims, h = d["dims"], d["spacing"]
+    x0, x1 = d["x"]
+    z0, z1 = d["z"]
+    if z0 != 0.0:
+        v.bad("domain.z", "must start at 0 (the orifice is the floor z = 0)", d["z"])
+    for name, (a, b) in (("x", d["x"]), ("z", d["z"])):
+        n = (b - a) / h
+        if not math.isfinite(n) or n > 1e9:
+            v.bad("domain.spacing", f"is far too small for the domain.{name} extent "
+                  f"{_show(b - a)} ({n:.3g} cells)", h)
+        elif round(n) < 4:
+            v.bad("domain.spacing", f"must give at least 4 cells across the "
+                  f"domain.{name} extent {_show(b - a)}", h)
+        elif abs(n - round(n)) > 1e-6 * max(1.0, n):
+            v.bad("domain.spacing", f"must divide the domain.{name} extent "
+                  f"{_show(b - a)} into whole cells", h)
+    # orifice on the floor
+    half = 0.5 * o["width"] if o["profile"] == "uniform" else 0.0
+    if not (x0 <= o["x"] - half and o["x"] + half <= x1):
+        what = "the slot [x - width/2, x + width/2]" if half else "the centre"
+        v.bad("orifice.x", f"{what} must lie on the floor "
+              f"domain.x = [{_show(x0)}, {_show(x1)}] (orifice.width = "
+              f"{_show(o['width'])})", o["x"])
+    if "y" in o:
+        if dims != 3:
+            v.bad("orifice.y", "is only used when domain.dims = 3; remove it",
+                  o["y"])
+        elif not (x0 <= o["y"] - half and o["y"] + half <= x1):
+            v.bad("orifice.y", f"the orifice must lie on the floor, y in "
+                  f"[{_show(x0)}, {_show(x1)}] (y uses the domain.x extent)", o["y"])
+    if o["profile"] == "gaussian" and o["width"] == 0.0:
+        v.bad("orifice.width", 'must be > 0 for profile = "gaussian" '
+              '(use profile = "uniform" with width = 0 for a point source)', 0.0)
+    if 0.0 < o["width"] < h and o["profile"] == "uniform":
+        v.bad("orifice.width", f"must be 0 (a point source) or at least one cell "
+              f"(domain.spacing = {_show(h)})", o["width"])
+    # spots
+    if isinstance(o["rate"], dict) and s["mode"] != "transient":
+        v.bad("orifice.rate", 'a table of rates needs spots.mode = "transient"; '
+              "give a number for a steady run", o["rate"])
+    if s["mode"] == "transient" and s["t_end"] <= 0:
+        v.bad("spots.t_end", 'must be > 0 when spots.mode = "transient"', s["t_end"])
+    if "rho_max" in s and s["mode"] != "transient":
+        v.bad("spots.rho_max", 'interacting spots need spots.mode = "transient" '
+              "(no steady solver; run to a late spots.t_end)", s["rho_max"])
+    for key in ("flux", "diffusion_scaling", "frames"):
+        if key in s and "rho_max" not in s:
+            v.bad(f"spots.{key}", "is only used with spots.rho_max (interacting "
+                  "spots); set spots.rho_max or remove it", s[key])
+    if o.get("noise") is not None and s["mode"] != "transient":
+        v.bad("orifice.noise", 'a random rate needs spots.mode = "transient"; '
+              "remove it for a steady run", o["noise"])
+    if s["mode"] == "steady" and s["t_end"] != 0:
+        v.bad("spots.t_end", 'is only used when spots.mode = "transient"; '
+              'set it to 0 or remove it', s["t_end"])
+    # kernel
+    if k["shape"] == "uniform" and "volume" in k:
+        w = k["volume"] / _ellipsoid_measure(k["size"], k["aspect"], dims)
+        if w > 1.001:   # w = 1 (the void model's spot), volume rounded to 4 digits, is fine
+            v.bad("kernel.volume", f'with shape = "uniform" and kernel.size = '
+                  f'{_show(k["size"])} implies the influence w = volume / spot '
+                  f"{'area' if dims == 2 else 'volume'} = {w:.3g} > 1 (a spot moves "
+                  "each particle by at most its own step); use a smaller volume or "
+                  "a larger size", k["volume"])
+    if "height" in k:
+        if k["shape"] != "uniform":
+            v.bad("kernel.height", 'is only for shape = "uniform" (the influence w '
+                  'inside the disk/sphere); give kernel.volume instead', k["height"])
+    # tracer
+    t = data.get("tracer")
+    if t is not None and t.get("t_end") == math.inf and s["mode"] == "transient":
+        v.bad("tracer.t_end", 'inf (the steady propagator) needs spots.mode = '
+              '"steady"; give a finite time for a tracer in a starting flow', math.inf)
+    if t is not None and t.get("snapshots", "auto") != "auto" and s["mode"] != "transient":
+        v.bad("tracer.snapshots", 'is only used when spots.mode = "transient"; '
+              'remove it or set it to "auto"', t["snapshots"])
+    if t is not None and "start" in t:
+        st = t["start"]
+        if not x0 <= st["x"] <= x1:
+            v.bad("tracer.start.x", f"must lie in domain.x = [{_show(x0)}, "
+                  f"{_show(x1)}]", st["x"])
+        if not z0 < st["z"] < z1:
+            v.bad("tracer.start.z", f"must lie inside domain.z = ({_show(z0)}, "
+                  f"{_show(z1)})", st["z"])
+        if "y" in st:
+            if dims != 3:
+                v.bad("tracer.start.y", "is only used when domain.dims = 3; remove it",
+                      st["y"])
+            elif not x0 <= st["y"] <= x1:
+                v.bad("tracer.start.y", f"must lie in [{_show(x0)}, {_show(x1)}] "
+                      "(y uses the domain.x extent)", st["y"])
+        if st["width"] < h:
+            v.bad("tracer.start.width", f"must be at least domain.spacing = "
+                  f"{_show(h)} so the blob is resolved", st["width"])
+    if t is not None and "layers" in t:
+        sp = t["layers"]["spacing"]
+        if sp < 2 * h:
+            v.bad("tracer.layers.spacing", f"must be at least 2 * domain.spacing = "
+                  f"{_show(2 * h)} so every band covers a cell", sp)
+        elif sp >= 2 * (z1 - z0):
+            v.bad("tracer.layers.spacing", f"must be < 2 * the domain height "
+                  f"{_show(z1 - z0)} to leave a band and a gap in the silo", sp)
+
+    p = data.get("pair")
+    if p is not None:
+        if dims != 2:
+            v.bad("pair", "needs domain.dims = 2 (the pair solver is 2D)", dims)
+        if p.get("x") is not None and not x0 <= p["x"] <= x1:
+            v.bad("pair.x", f"must lie in domain.x = [{_show(x0)}, {_show(x1)}]",
+                  p["x"])
+        if p.get("z") is not None and not z0 < p["z"] < z1:
+            v.bad("pair.z", f"must lie inside domain.z = ({_show(z0)}, {_show(z1)})",
+                  p["z"])

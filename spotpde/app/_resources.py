@@ -1,0 +1,210 @@
+"""Resources of a run: available memory, the peak-memory estimate, tracer snapshots.
+
+A case is refused before any work when the arrays of its run would not fit:
+:func:`estimate_bytes` counts every grid array in float64 (8 bytes a cell) and the
+complex zero-padded FFT arrays of the kernel convolution (16 bytes a cell), and
+:func:`memory_problem` compares ``estimate + BASELINE_BYTES`` with
+``MEMORY_FRACTION * available_memory()`` and names the key to change. The public
+names are re-exported by :mod:`spotpde.cases` (the validation there reads
+``spotpde.cases.available_memory``, so replacing that one function replaces the
+machine's memory).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+import numpy as np
+
+from ._schema import _ellipsoid_measure
+
+#: Fraction of the available memory a run may plan to use.
+MEMORY_FRACTION = 0.6
+#: Memory of the interpreter and libraries of a run (numpy, numba, xarray, matplotlib).
+BASELINE_BYTES = 512 * 1024**2
+#: Horizontal reach of a kernel in units of its ``size``, used only if the kernel cannot
+#: be built (the estimate otherwise asks the kernel class: ``kernel_halfwidths``); the
+#: smooth kernels are cut where ``w = 1e-14 w(0)``.
+_REACH = {"uniform": 1.0, "gaussian": 8.0, "exponential": 32.3}
+
+
+def available_memory() -> int:
+    """Bytes of memory available to a new run: :func:`psutil.virtual_memory`
+    ``available`` (on Linux ``MemAvailable`` of ``/proc/meminfo``).
+
+    Returns:
+        Available memory in bytes (4 GiB if the system does not say).
+    """
+    import psutil
+
+    try:
+        return int(psutil.virtual_memory().available)
+    except Exception:  # noqa: BLE001 - a platform psutil cannot read
+        return 4 * 1024**3
+
+
+def auto_snapshots(data: Mapping) -> int:
+    """``tracer.snapshots = "auto"``: one snapshot per time a spot needs to rise by the
+    kernel's vertical size (``kernel.size / kernel.aspect / max v_s``) over
+    ``[0, tracer.t_end]``, at least 21 and at most 401.
+
+    Args:
+        data: a validated case mapping with a tracer and transient spots.
+    """
+    s, k, t = data["spots"], data["kernel"], data["tracer"]
+    drift = s["drift"]
+    v = float(np.max(np.abs(drift["values"] if isinstance(drift, Mapping) else drift)))
+    n = math.ceil(t["t_end"] * v * k["aspect"] / k["size"]) + 1
+    return int(min(max(n, 21), 401))
+
+
+def estimate_bytes(data: Mapping, frames_in_memory: bool = True) -> int:
+    """Estimate the memory a run of a validated case holds at its peak.
+
+    Counts every grid array of the run (spot density, kinematic speed, drift and
+    diffusivity fields, solver scratch), the zero-padded FFT arrays of the kernel
+    convolution, the sampled kernel stencil, and the tracer frames.
+
+    Args:
+        data: a mapping that passed the per-key checks (``validate`` internals).
+        frames_in_memory: count the tracer frames (``False`` when they are streamed to
+            the result file one at a time).
+
+    Returns:
+        Estimated peak bytes (a float-safe int).
+    """
+    return _estimate(data, frames_in_memory)
+
+
+def kernel_halfwidths(data: Mapping) -> tuple[int, int]:
+    """Half-widths ``(vertical, horizontal)`` in cells of the sampled kernel stencil of a
+    validated case, from the kernel class's own reach (``Kernel.halfwidths``); the
+    stencil has ``2 m + 1`` cells along each axis (e.g. 65 for a Gaussian of sigma 1 at
+    h = 0.25, 259 for an exponential kernel of decay length 1).
+    """
+    from ..fields import kernels
+
+    d, k = data["domain"], data["kernel"]
+    volume = (k["height"] * _ellipsoid_measure(k["size"], k["aspect"], d["dims"])
+              if "height" in k else k["volume"])
+    kern = kernels.from_spec(k["shape"], k["size"], volume, k["aspect"], d["dims"])
+    m = kern.halfwidths(d["spacing"])
+    return m[0], m[-1]
+
+
+def _estimate(data: Mapping, frames_in_memory: bool = True, *, pad: bool = True,
+              stencil: bool = True, frames: bool = True) -> int:
+    """:func:`estimate_bytes`; ``pad``/``stencil``/``frames`` False leave out the open-wall
+    padding, the kernel stencil (a 1-cell stencil) or the tracer frames (one frame), to
+    find which key makes a case too large."""
+    d, k = data["domain"], data["kernel"]
+    dims, h = d["dims"], d["spacing"]
+    nx = (d["x"][1] - d["x"][0]) / h
+    nz = (d["z"][1] - d["z"][0]) / h
+    if d["walls"] == "open" and pad:   # the spot density is solved on a padded, wider grid
+        b = data["spots"]["b"]
+        b = max(b["values"]) if isinstance(b, Mapping) else b
+        nx += 2 * math.ceil(6.0 * math.sqrt(b * (d["z"][1] - d["z"][0])) / h)
+    cells = nz * nx ** (dims - 1)
+    if not stencil:
+        sx = sz = 1
+    else:
+        try:
+            mz, mh = kernel_halfwidths(data)
+            sx, sz = 2 * mh + 1, 2 * mz + 1
+        except (ValueError, ArithmeticError):   # refused later, by cases._check_kernel
+            reach_h = _REACH[k["shape"]] * k["size"]
+            sx = 2 * math.ceil(reach_h / h) + 1
+            sz = 2 * math.ceil(reach_h / k["aspect"] / h) + 1
+    stencil = sz * sx ** (dims - 1)
+    padded = (nz + sz) * (nx + sx) ** (dims - 1)
+    n_fields = 1 + 1 + (5 if dims == 2 else 9)     # rho_s, v_kin, u_*, D_**
+    scratch = 12                                    # spot-density and coefficient work arrays
+    tracer = data.get("tracer")
+    n_tracer = 0
+    if tracer is not None:
+        # frames (one in flight when streamed), P_height, scheme fluxes and stages
+        n_tracer = (tracer["frames"] if frames_in_memory and frames else 1) + 1 + 16
+        if tracer["t_end"] == math.inf:
+            # steady solve: no frames; the sparse matrix and its LU factors (fill
+            # measured: ~50 entries of 12 bytes per cell on a 2D grid of 9e4 cells; 3D
+            # fill grows like cells**(1/3))
+            n_tracer = 4 + (80 if dims == 2 else 10 * cells ** (1 / 3))
+        if data["spots"]["mode"] == "transient":
+            # spot-density snapshots (one more in flight), the fields of three of them,
+            # and the tracer's cache of operators (face velocities, diffusion splitting,
+            # the interpolated fields) for a few stage times
+            n = tracer["snapshots"]
+            n_tracer += ((auto_snapshots(data) if n == "auto" else n) + 1 + 3 * n_fields
+                         + 5 * (n_fields + 2 * dims + 4))
+    if data["spots"].get("rho_max") is not None:
+        # interacting spots: space-time frames of rho_s and free_volume, solver stages
+        n_tracer += 2 * (data["spots"].get("frames") or 101) + 8
+    total = 8.0 * cells * (n_fields + scratch + n_tracer)
+    total += 16.0 * padded * 6 + 8.0 * stencil * 2
+    return int(min(total, 1e30))
+
+
+def memory_problem(data: Mapping, frames_in_memory: bool, have: int
+                   ) -> tuple[str, str, object] | None:
+    """Whether a run of ``data`` fits in memory, and if not, which key to blame.
+
+    The run fits when ``estimate_bytes(data) + BASELINE_BYTES <= MEMORY_FRACTION * have``.
+    Otherwise the key is ``domain.spacing`` (the grid itself is too large), or, when the
+    bare grid fits, what is added to it: ``spots.b`` (the padding of open walls,
+    ``6 sqrt(b H)`` on each side), ``kernel.size``/``kernel.aspect`` (the kernel
+    stencil widening every FFT array) or ``tracer.frames`` (frames held in memory).
+
+    Args:
+        data: a validated case mapping (tables and cross-key checks passed).
+        frames_in_memory: count the tracer frames (``False`` when streamed).
+        have: bytes of memory available (``available_memory()``).
+
+    Returns:
+        ``None`` if the run fits, else ``(dotted key, message, offending value)``.
+    """
+    need = estimate_bytes(data, frames_in_memory) + BASELINE_BYTES
+    if need <= MEMORY_FRACTION * have:
+        return None
+    d = data["domain"]
+    nx = (d["x"][1] - d["x"][0]) / d["spacing"]
+    nz = (d["z"][1] - d["z"][0]) / d["spacing"]
+    cells = " x ".join(f"{n:,.0f}" for n in ([nz] + [nx] * (d["dims"] - 1)))
+    snaps = data.get("tracer") is not None and data["spots"]["mode"] == "transient"
+    limit = MEMORY_FRACTION * have - BASELINE_BYTES
+    key, value, advice = "domain.spacing", d["spacing"], (
+        "use a larger spacing, a smaller domain or fewer tracer.frames"
+        + (" or tracer.snapshots" if snaps else ""))
+    if _estimate(data, frames_in_memory, pad=False, stencil=False,
+                 frames=False) <= limit:
+        # the grid itself fits: blame what is added to it
+        k = data["kernel"]
+        if d["walls"] == "open" and _estimate(data, frames_in_memory, stencil=False,
+                                              frames=False) > limit:
+            key, value, advice = "spots.b", data["spots"]["b"], (
+                'with domain.walls = "open" the spot density is solved on a grid '
+                "widened by 6 sqrt(b H) on each side; use a smaller b or reflecting "
+                "walls")
+        elif _estimate(data, frames_in_memory, frames=False, pad=False) > limit:
+            mz, mh = kernel_halfwidths(data)
+            if k["aspect"] < 1 and mz > mh:
+                key, value = "kernel.aspect", k["aspect"]
+            else:
+                key, value = "kernel.size", k["size"]
+            advice = (f"the kernel stencil of {2 * mz + 1} x {2 * mh + 1} cells "
+                      "widens every FFT array; use a smaller kernel.size, an aspect "
+                      "nearer 1 or a larger domain.spacing")
+        elif data.get("tracer") is not None and frames_in_memory:
+            key, value = "tracer.frames", data["tracer"]["frames"]
+            advice = ("use fewer frames, or stream them to the result file "
+                      "(spotpde run, or spotpde.run(case, path=...))")
+    message = (f"the grid of {cells} cells (with kernel stencil and "
+               f"tracer frames) needs about {_gb(need)}, more than the "
+               f"{_gb(MEMORY_FRACTION * have)} this machine can spare; {advice}")
+    return key, message, value
+
+
+def _gb(n: float) -> str:
+    """Bytes ``n`` as GB (1024**3 bytes) to 3 digits, for the memory message."""
+    return f"{n / 1024**3:.3g} GB" if n < 1e25 else "an impossible amount of memory"
