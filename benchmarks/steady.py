@@ -58,7 +58,7 @@ def flagship():
     case = load_case(raw)
     grid = case.grid
     rho = clip_roundoff(spot_density.solve(grid, case.orifice, case.spots))
-    f = pipeline.particle_fields(case, rho)
+    f = pipeline.case_fields(case, rho)
     P0 = pipeline.initial_density(grid, case.tracer.start)
     t0 = time.perf_counter()
     tw = tracer.solve(grid, f, P0, 1500.0, 2)
@@ -95,7 +95,7 @@ def main():
     case = void_case(args.nx, args.nz)
     grid = case.grid
     rho = clip_roundoff(spot_density.solve(grid, case.orifice, case.spots))
-    fields = pipeline.particle_fields(case, rho)
+    fields = pipeline.case_fields(case, rho)
     P0 = pipeline.initial_density(grid, case.tracer.start)
     print(f"void model, point orifice, release at z = 60 d; grid {grid.shape[1]} x "
           f"{grid.shape[0]} cells, h = {grid.spacing} d")

@@ -96,9 +96,11 @@ def test_compare_with_kinematic_rejects_bad_input():
         comparison.compare_with_kinematic(parts)
 
 
-@pytest.mark.parametrize("entry", [comparison.main, lambda argv: cli.main(["compare", *argv])],
-                         ids=["python -m spotpde.comparison", "spotpde compare"])
-def test_command_line_prints_summary_and_writes_figure(entry, tmp_path, capsys):
+def test_command_line_prints_summary_and_writes_figure(tmp_path, capsys):
+    """``spotpde compare``: the one command line of the comparison."""
+    def entry(argv):
+        return cli.main(["compare", *argv])
+
     case = tmp_path / "c.toml"
     case.write_text('[domain]\nx = [-20.0, 20.0]\nz = [0.0, 20.0]\nspacing = 0.5\n'
                     '[kernel]\nshape = "uniform"\nsize = 2.5\nvolume = 0.0471238898038469\n')
@@ -108,4 +110,9 @@ def test_command_line_prints_summary_and_writes_figure(entry, tmp_path, capsys):
     assert len(out) == 2 and out[0].startswith("rule=0.5") and out[1].startswith("rule=1")
     assert fig.stat().st_size > 1000
     assert entry([str(tmp_path / "missing.toml")]) == 2
-    assert comparison.main([str(tmp_path / "missing.toml")]) == 2
+    # a ValueError of the library (rule outside [0, 1]): status 2, its message, no figure
+    capsys.readouterr()
+    bad = tmp_path / "bad.png"
+    assert entry([str(case), "--rules", "2", "-o", str(bad)]) == 2
+    err = capsys.readouterr()
+    assert err.out == "" and err.err.startswith("rule:") and not bad.exists()

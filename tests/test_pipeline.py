@@ -74,7 +74,7 @@ def fakes(monkeypatch):
         return fields(grid, rho_s, kernel.V1, kernel.V2)
 
     def void_fields(grid, rho_s, spots, V1):
-        calls.append(("void.particle_fields", V1))
+        calls.append(("void.void_fields", V1))
         return fields(grid, rho_s, V1, V1)
 
     def tracer_solve(grid, flds, P0, t_end, frames, progress=None, on_frame=None, **options):
@@ -97,7 +97,7 @@ def fakes(monkeypatch):
         "spotpde.fields.coefficients": types.SimpleNamespace(particle_fields=particle_fields),
         "spotpde.density.kinematic": types.SimpleNamespace(speed=unit_speed),
         "spotpde.tracer": types.SimpleNamespace(solve=tracer_solve),
-        "spotpde.fields.void": types.SimpleNamespace(particle_fields=void_fields),
+        "spotpde.fields.void": types.SimpleNamespace(void_fields=void_fields),
     }
     for name, mod in mods.items():
         monkeypatch.setitem(sys.modules, name, mod)
@@ -142,7 +142,7 @@ def test_v_kin_carries_the_flux_V1_Q0(fakes):
 def test_void_model_uses_the_void_fields(fakes):
     case = load_case(small(tracer={"model": "void"}))
     ds = spotpde.run(case)
-    assert ("void.particle_fields", pytest.approx(case.kernel.V1)) in fakes
+    assert ("void.void_fields", pytest.approx(case.kernel.V1)) in fakes
     assert not any(c[0] == "coefficients.particle_fields" for c in fakes)
     assert ds.attrs["rule"] == 1.0 and ds.attrs["model"] == "void"
     assert ds.attrs["V2"] == ds.attrs["V1"]

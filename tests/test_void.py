@@ -200,7 +200,7 @@ def _point_fields(h, rule=1.0, V1=0.8, v_s=1.5, b=1.3):
     grid = Grid(2, (-16.0, 16.0), (0.0, 32.0), h, walls="open")
     Z, X = grid.mesh()
     rho = void.point_void_density(X, Z, b) / v_s  # Q0 = 1
-    f = void.particle_fields(grid, rho, Spots(drift=v_s, b=b), V1, rule=rule)
+    f = void.void_fields(grid, rho, Spots(drift=v_s, b=b), V1, rule=rule)
     return grid, Z, X, rho, f
 
 
@@ -248,7 +248,7 @@ def test_void_fields_variable_coefficients_and_3d():
         rho = 1.0 + 0.3 * np.sin(X / 3) * np.exp(-Z / 10) + 0 * Z
         bfield = 1.0 + 0.2 * np.cos(X / 4) + 0 * Z
         bpar = 0.5 + 0.1 * Z / 8 + 0 * X
-        f = void.particle_fields(grid, rho, Spots(drift=2.0, b=bfield, b_par=bpar), 1.0)
+        f = void.void_fields(grid, rho, Spots(drift=2.0, b=bfield, b_par=bpar), 1.0)
         # analytic d_x(rho D_perp) and d_z(rho D_par), v_s = 2
         dFx = 2.0 * (0.3 * np.cos(X / 3) / 3 * np.exp(-Z / 10) * bfield
                      + rho * (-0.2 * np.sin(X / 4) / 4))
@@ -263,7 +263,7 @@ def test_void_fields_variable_coefficients_and_3d():
     g3 = Grid(3, (-6.0, 6.0), (0.0, 12.0), 0.5, walls="open")
     Z, Y, X = g3.mesh()
     rho3 = void.point_void_density((X, Y), Z, 1.3, dims=3)
-    f3 = void.particle_fields(g3, rho3, Spots(drift=1.0, b=1.3), 1.0)
+    f3 = void.void_fields(g3, rho3, Spots(drift=1.0, b=1.3), 1.0)
     assert set(f3) == {"u_x", "u_y", "u_z", "D_xx", "D_yy", "D_zz", "D_xy", "D_xz", "D_yz"}
     assert all(a.shape == g3.shape for a in f3.values())
     np.testing.assert_allclose(f3["u_y"], np.swapaxes(f3["u_x"], 1, 2), atol=1e-14)
@@ -272,7 +272,7 @@ def test_void_fields_variable_coefficients_and_3d():
     exact = np.broadcast_to(-X / Z, g3.shape)
     assert np.abs(drift_x - exact)[sel].max() < 0.05 * np.abs(exact)[sel].max()
     with pytest.raises(ValueError):
-        void.particle_fields(g3, rho3[:-1], Spots(), 1.0)
+        void.void_fields(g3, rho3[:-1], Spots(), 1.0)
 
 
 def test_void_density_is_the_kinematic_point_source():

@@ -29,7 +29,7 @@ def run():
     grid = Grid(2, (-16.0, 16.0), (3.0, 23.0), h, walls="open")
     Z, X = grid.mesh()
     rho = void.point_void_density(X, Z, B) + 0 * X  # Q0 = v_s = 1
-    fields = void.particle_fields(grid, rho, Spots(drift=1.0, b=B), V1=1.0)
+    fields = void.void_fields(grid, rho, Spots(drift=1.0, b=B), V1=1.0)
     P0 = np.exp(-((X - X0) ** 2 + (Z - Z0) ** 2) / (2 * SIGMA**2)) + 0 * X
     P0 /= P0.sum() * h * h
     result = tracer.solve(grid, fields, P0, 1500.0, 2)

@@ -345,37 +345,3 @@ def plot_comparison(comparisons: Mapping[float, KinematicComparison], path=None)
         fig.savefig(path, dpi=120)
     return fig
 
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m spotpde.comparison CASE.toml [--rules 0.5 1] [-o FIG.png]``.
-
-    Prints the per-rule summary (medians over heights) and, with ``-o``, writes the
-    comparison figure. Exit status 0, or 2 for an invalid case.
-    """
-    import argparse
-    import sys
-
-    from ..app.cases import load_case
-    from ..errors import CaseError
-
-    parser = argparse.ArgumentParser(prog="python -m spotpde.comparison",
-                                     description="Spot-model mean flow against the Kinematic Model.")
-    parser.add_argument("case", help="case file (TOML)")
-    parser.add_argument("--rules", type=float, nargs="+", default=[0.5, 1.0], help="lam values")
-    parser.add_argument("-o", "--output", default=None, help="figure path (PNG)")
-    args = parser.parse_args(argv)
-    try:
-        case = load_case(args.case)
-        results = compare_rules(case, args.rules)
-    except (CaseError, ValueError) as exc:
-        print(str(exc), file=sys.stderr)
-        return 2
-    for lam, c in results.items():
-        print(" ".join(f"{k}={v:.6g}" for k, v in c.summary().items()))
-    if args.output:
-        plot_comparison(results, args.output)
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

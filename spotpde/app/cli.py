@@ -191,13 +191,31 @@ def cmd_sweep(args) -> int:
 
 
 def cmd_compare(args) -> int:
-    """``spotpde compare CASE.toml [--rules LAM ...] [-o FIG.png]``: spot vs kinematic flow."""
-    from ..analysis.comparison import main as compare_main
+    """``spotpde compare CASE.toml [--rules LAM ...] [-o FIG.png]``: spot vs kinematic flow.
+
+    Prints one line per rule ``lam`` on standard output: the medians over the compared
+    heights of :meth:`spotpde.comparison.KinematicComparison.summary` (``key=value``;
+    speeds in d per unit time, lengths in d); with ``-o`` also writes the comparison
+    figure (:func:`spotpde.comparison.plot_comparison`). Exit status 0, or 2 for an
+    invalid case or one the comparison cannot use (a ``ValueError``, e.g. a non-uniform
+    ``spots.b``: its message on standard error).
+    """
+    from .cases import load_case
+    from ..analysis.comparison import compare_rules, plot_comparison
 
     if args.output:
         _check_outputs([("-o", args.output, FIGURE_FORMATS)], inputs=[args.case])
-    argv = [args.case, "--rules", *map(str, args.rules)]
-    return compare_main(argv + (["-o", args.output] if args.output else []))
+    try:
+        case = load_case(args.case)
+        results = compare_rules(case, args.rules)
+    except (CaseError, ValueError) as exc:
+        _say(str(exc))
+        return EXIT_INVALID
+    for c in results.values():
+        print(" ".join(f"{k}={v:.6g}" for k, v in c.summary().items()))
+    if args.output:
+        plot_comparison(results, args.output)
+    return EXIT_OK
 
 
 def _check_outputs(outputs, inputs) -> None:

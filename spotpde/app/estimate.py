@@ -97,10 +97,10 @@ def case_estimate(case) -> dict | None:
         return None
     from ..density import spot_density
     from .._roundoff import clip_roundoff
-    from .pipeline import particle_fields
+    from .pipeline import case_fields
     rho = clip_roundoff(np.asarray(spot_density.solve(case.grid, case.orifice, case.spots),
                                    dtype=float))
-    fields = particle_fields(case, rho)
+    fields = case_fields(case, rho)
     return tracer_steps(case.grid, fields, t.t_end, t.frames, **case.tracer_options)
 
 

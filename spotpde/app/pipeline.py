@@ -5,7 +5,7 @@ Stages (each reports its progress)::
     spot density     spot_density.solve(grid, orifice, spots)          -> rho_s
                      (transient with a tracer: spot_density.transient(..., times=))
     particle fields  coefficients.particle_fields(grid, rho_s, spots, kernel, rule)
-                     (tracer.model = "void": void.particle_fields(grid, rho_s, spots, V1))
+                     (tracer.model = "void": void.void_fields(grid, rho_s, spots, V1))
     kinematic model  kinematic.speed(grid, orifice, b) * V1 * Q0       -> v_kin
     tracer           tracer.solve(grid, fields, P0, t_end, frames, limiter=, cfl=,
                      diffusion=, on_frame=)                             (optional)
@@ -130,7 +130,7 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
     # coefficient fields of a transient run use its positive part (rho_s is reported as
     # solved)
     transient = spots.mode == "transient"
-    fields = particle_fields(case, np.maximum(rho_s, 0.0) if transient else rho_s)
+    fields = case_fields(case, np.maximum(rho_s, 0.0) if transient else rho_s)
     stage(1.0)
 
     stage = _stage(progress, "kinematic model") or _noop
@@ -154,7 +154,7 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
         tracer = importlib.import_module("spotpde.tracer")
         P0 = initial_density(grid, case.tracer.start)
         coefficients = (fields if snapshots is None else
-                        SnapshotFields(snap_times, snapshots, lambda r: particle_fields(case, r)))
+                        SnapshotFields(snap_times, snapshots, lambda r: case_fields(case, r)))
     if case.tracer is not None and math.isinf(case.tracer.t_end):
         # t_end = inf: the geometrical propagator by one steady solve (docs/steady.md)
         stage = _stage(progress, "tracer") or _noop
@@ -201,15 +201,15 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
     return ds
 
 
-def particle_fields(case: Case, rho_s: np.ndarray) -> dict[str, np.ndarray]:
+def case_fields(case: Case, rho_s: np.ndarray) -> dict[str, np.ndarray]:
     """The particle drift and diffusivity fields of a case for one spot density.
 
     ``coefficients.particle_fields`` with the case's kernel and rule, or
-    ``void.particle_fields`` for ``tracer.model = "void"``.
+    ``void.void_fields`` for ``tracer.model = "void"``.
     """
     if case.model == "void":
         void = importlib.import_module("spotpde.fields.void")
-        fields = void.particle_fields(case.grid, rho_s, case.spots, float(case.kernel.V1))
+        fields = void.void_fields(case.grid, rho_s, case.spots, float(case.kernel.V1))
     else:
         coefficients = importlib.import_module("spotpde.fields.coefficients")
         fields = coefficients.particle_fields(case.grid, rho_s, case.spots, case.kernel,

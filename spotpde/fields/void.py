@@ -24,7 +24,7 @@ Main results (point orifice, unbounded silo):
   at the orifice, ``x | z ~ N(x0 z / z0, 2 b z (z0 - z) / z0)`` per horizontal component.
   The printed equation instead gives ``N(x0 sqrt(z0 / z), b (z0**2 - z**2) / z)``.
 
-Also here: the void-model particle coefficient fields on a grid (:func:`particle_fields`),
+Also here: the void-model particle coefficient fields on a grid (:func:`void_fields`),
 a 1D reference marcher for either form of the propagator equation
 (:func:`march_propagator`), and the lattice void model itself, solved exactly by a
 transfer matrix (:func:`lattice_propagator`) and by a Monte Carlo of particles displaced
@@ -307,8 +307,8 @@ def _apply(up, lo, diag, P):
 # ---------------------------------------------------------------------------------------
 # Void-model coefficient fields on the grid (local spot-model limit)
 # ---------------------------------------------------------------------------------------
-def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, V1: float,
-                    rule: float = 1.0) -> dict[str, np.ndarray]:
+def void_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, V1: float,
+                rule: float = 1.0) -> dict[str, np.ndarray]:
     """Particle drift and diffusivity of the void model (local kernel, ``V2 = V1``).
 
     Local limit of the spot-model coefficients (docs/conventions.md section 2)::
