@@ -393,19 +393,50 @@ def test_monte_carlo_cage_breaking_against_the_equation():
 
 
 @pytest.mark.slow
-def test_monte_carlo_rule_half_agrees_with_passage():
+def test_frozen_pair_tensor_converges_to_the_passage_quadrature():
+    # Smooth kernel (Gaussian sigma = 1 d, small V1 = 0.01: no motion during a passage),
+    # b = 1.3 d, lam = 1/2, step 0.05 d: the discrete model's frozen-pair B^xx, B^xz, B^zz
+    # at d, 1.5 d, 2 d and 0, 45, 90 degrees agree with the Fourier quadrature. (The sharp
+    # uniform disk converges only like step^0.7 at its edge: 46 % above the quadrature
+    # at contact at step 0.05 d, 7 % at 0.003 d; docs/pair.md, section 3.)
+    from spotpde.fields import _passage
     from spotpde.pair import _mc as _pair_mc
 
-    k = Uniform(radius=2.5, height=0.03)
-    ds = pair.cage_breaking(k, 1.3, rule=0.5, diffusivity="passage")
-    mf = pair.cage_breaking(k, 1.3, rule=0.5, diffusivity="mean-field").attrs["mean_fall"]
+    k = Gaussian(sigma=1.0, volume=0.01)
+    R, A = np.meshgrid(RADII, ANGLES, indexing="ij")
+    X, Z = (R * np.cos(A)).ravel(), (R * np.sin(A)).ravel()
+    q = _passage.length_tensor(k, 1.3, 0.0, 0.5, separation=(X, Z))
+    mc = _pair_mc.probe_tensor(k, 1.3, 0.5, X, Z, spots=40_000, seed=3, step=0.05)
+    for c in ("xx", "xz", "zz"):
+        z = (mc[c] - q[c]) / mc[c + "_se"]
+        assert np.all(np.abs(z) < 3.5), (c, mc[c], q[c], mc[c + "_se"])
+
+
+@pytest.mark.slow
+def test_monte_carlo_rule_half_agrees_with_passage():
+    # Two particles in the discrete model at lam = 1/2 against the passage equation
+    # (w -> 0, step -> 0 limit). The uniform disk of the issue (R = 2.5 d, w = 0.03) is
+    # not converged in the step (its sharp edge: B^xx 18-46 % above the quadrature at
+    # step 0.05 d, docs/pair.md), so the check uses a smooth kernel whose discrete B
+    # matches the quadrature at step 0.05 d (test above): Gaussian sigma = 1 d with
+    # V1 = 0.377 (w(0) = 0.06; motion during a passage lowers B^xx by 4 %, B^zz by 7 %,
+    # below the standard error of the mean fall), b = 1.3 d, 100 pairs side by side at
+    # contact, conormal hard core.
+    from spotpde.pair import _mc as _pair_mc
+
+    k = Gaussian(sigma=1.0, volume=0.377)
+    pa = pair.cage_breaking(k, 1.3, rule=0.5, diffusivity="passage",
+                            fall_end=1.0).attrs["mean_fall"]
+    mf = pair.cage_breaking(k, 1.3, rule=0.5, diffusivity="mean-field",
+                            fall_end=1.0).attrs["mean_fall"]
     at_contact = pair.relative_tensor(k, 1.3, 0.5, 0.0, "passage", X=np.cos(ANGLES),
                                       Z=np.sin(ANGLES))
-    f = _pair_mc.cage_breaking_mc(k, 1.3, rule=0.5, replicas=400, seed=7,
+    f = _pair_mc.cage_breaking_mc(k, 1.3, rule=0.5, replicas=100, seed=7, step=0.05,
                                   contact_tensor=(ANGLES, at_contact))
+    assert np.all(np.isfinite(f))
     se = f.std(ddof=1) / np.sqrt(len(f))
-    # far from mean field, and at most half as far from the passage equation as from mean field. Not yet within 3 SE: at this w = 0.03 and step 0.05 d the discrete
-    # pairs break their cages 15 % sooner than the passage equation says (44.7 +- 2.0 d,
-    # 46.4 +- 2.0 d at step 0.0125 d, against 52.3 d); open, see docs/pair.md
-    assert (f.mean() - mf) / se > 8
-    assert abs(f.mean() - ds.attrs["mean_fall"]) < abs(f.mean() - mf) / 2
+    # passage 46.4 d, mean field 19.2 d; measured 46.0 +- 3.1 d (this test), 45.0 +- 2.6 d
+    # (150 pairs), 47.3 +- 3.7 d (100 pairs, step 0.025 d)
+    assert abs(f.mean() - pa) < 3 * se, (f.mean(), se, pa)
+    assert (f.mean() - mf) / se > 8, (f.mean(), se, mf)
+    assert abs(f.mean() - pa) < abs(f.mean() - mf) / 2
