@@ -20,7 +20,7 @@ points numba at a per-user directory, chosen in this order:
 
 The first directory that can be created and written is used. numba keeps a separate
 subtree per source directory under it, so several installs share it safely. FFTW wisdom
-(:mod:`spotpde._fft`) lives beside it, in the parent ``spotpde`` cache directory.
+(:mod:`spotpde.fields._fft`) lives beside it, in the parent ``spotpde`` cache directory.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The passage diffusivity: the discrete spot model's Lagrangian diffusion in uniform flow.
 
-spotpde._passage.length_tensor against closed forms (Gaussian kernel, straight paths,
+spotpde.fields._passage.length_tensor against closed forms (Gaussian kernel, straight paths,
 rules 0 and 1), the paper's-disk reference numbers, a direct passage Monte Carlo of the
 discrete model at decreasing step size, the pair tensor's limits, and the local form in
 coefficients.particle_fields, the case key and a tracer run on passage fields.

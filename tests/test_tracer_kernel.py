@@ -1,11 +1,11 @@
 """The 2D tracer right-hand-side kernel against a plain reference implementation.
 
-The numba kernel (``spotpde._fp_kernels.rhs_2d_kernel``) is written for speed: chunks
+The numba kernel (``spotpde.tracer._fp_kernels.rhs_2d_kernel``) is written for speed: chunks
 of rows, branch-free selects, index offsets arranged for vectorisation, face fluxes in
 chunk-local buffers. This test writes the same discretisation the slow, obvious way
 (Python loops over faces, the limiter table of docs/tracer.md, the WENO-Z formula of
 Jiang & Shu / Borges et al. in its textbook form, and the diffusion tensor from the
-independent sparse assembly in ``spotpde._diffusion``) and requires agreement to
+independent sparse assembly in ``spotpde.tracer._diffusion``) and requires agreement to
 round-off, for every reconstruction, on grids that exercise the boundary fallbacks
 (fewer cells than the stencil), several chunks, both flow directions, and 1 or 2
 threads; in 2D and in 3D (where the same row functions run along z, y and x lines).

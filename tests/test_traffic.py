@@ -1,5 +1,5 @@
 """Interacting spots (spots.rho_max): Riemann problems, Cole-Hopf solutions, limits,
-budgets, noise and bad input (spotpde.traffic, spotpde._traffic, spotpde.noise)."""
+budgets, noise and bad input (spotpde.traffic, spotpde.density._traffic, spotpde.noise)."""
 
 from __future__ import annotations
 

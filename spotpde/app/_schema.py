@@ -27,7 +27,7 @@ from ..grid import WALLS
 from ..parameters import PROFILES, SPOT_MODES, TRACER_MODELS
 
 KERNEL_SHAPES = ("uniform", "gaussian", "exponential")
-#: Wall treatments of the influence kernel (``spotpde._walls.WALL_TREATMENTS``).
+#: Wall treatments of the influence kernel (``spotpde.fields._walls.WALL_TREATMENTS``).
 KERNEL_WALLS = ("renormalise", "truncate")
 #: Options of the tracer solver (``spotpde.tracer.solve``).
 LIMITERS = ("koren", "vanleer", "mc", "minmod", "weno5", "upwind")

@@ -1,7 +1,7 @@
 """The spot Fokker-Planck equation as a py-pde ``PDEBase`` (explicit cross-check path).
 
 The right-hand side is the conservative finite-volume operator of
-:mod:`spotpde._elliptic`, ``d rho/dt = A rho + Q0(t) q``, in py-pde's axis order
+:mod:`spotpde.density._elliptic`, ``d rho/dt = A rho + Q0(t) q``, in py-pde's axis order
 (``x`` first, ``z`` last). The numba version is a compiled CSR matrix-vector product
 (constant ``Q0`` only; a time-dependent ``Q0`` uses the numpy backend). Boundary
 conditions live in ``A`` (no flux through walls and floor, inflow through the orifice,
@@ -10,7 +10,7 @@ outflow at the top), so py-pde's boundary-condition machinery is not used.
 py-pde's explicit solvers (with its adaptive step control, ``MemoryStorage`` for frames
 and ``CallbackTracker`` for progress) fit this equation only on small grids: stability
 needs ``dt < h**2 / (2 dims D)``, about 25 times below the Courant step of the BDF2
-default (:mod:`spotpde._transient`); its implicit solver is a fixed-point iteration that
+default (:mod:`spotpde.density._transient`); its implicit solver is a fixed-point iteration that
 does not converge once ``D dt / h**2 > 1``. Hence it serves as an independent
 time-integration check of the BDF2 stepping (``tests/test_spot_density.py``).
 """

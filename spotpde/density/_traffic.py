@@ -27,7 +27,7 @@ evaluated once):
   This is the exact Godunov flux for a concave ``q``: it picks ``q(rho_c)`` across a
   transonic rarefaction (the entropy fix) and never admits a shock with density falling
   upward. The boundary cells use zero slope (first order there).
-* diffusion: the pairwise exchanges of :mod:`spotpde._elliptic` (second-order central
+* diffusion: the pairwise exchanges of :mod:`spotpde.density._elliptic` (second-order central
   differences of ``D rho``), multiplied by ``m`` at the face (mean of the two cells).
 * time: SSP-RK2 (Heun; Shu & Osher 1988), explicit, with
 

@@ -1,6 +1,6 @@
 """Implicit time stepping of the spot Fokker-Planck equation ``d rho/dt = A rho + q(t)``.
 
-``A`` is the conservative finite-volume operator of :mod:`spotpde._elliptic`. Diffusion
+``A`` is the conservative finite-volume operator of :mod:`spotpde.density._elliptic`. Diffusion
 makes the system stiff (``D dt / h**2`` of order 10 at a Courant number of 1), so the
 stepping is implicit: BDF2 (second order, A-stable and strongly damping, so a sharp
 start-up front does not ring as it would under Crank-Nicolson),

@@ -14,9 +14,9 @@ only b uniform)        in closed form, ``_spectral``)   round-off at every heigh
 steady, D_par = 0,     Crank-Nicolson / ADI marching    ``O(h**2)``, flux to round-off
 b varying              in height (:mod:`._marching`)
 steady, D_par > 0,     finite volumes + sparse LU       ``O(h**2)``, outflow ``Q0`` to
-coefficients varying   (:mod:`spotpde._elliptic`)       round-off
+coefficients varying   (:mod:`spotpde.density._elliptic`)       round-off
 transient              same finite volumes, BDF2        ``O(h**2 + dt**2)``
-                       (:mod:`spotpde._transient`)
+                       (:mod:`spotpde.density._transient`)
 transient, rho_max     MUSCL + demand-supply Godunov    ``O(h**2)`` smooth, ``O(h)``
 (interacting spots)    flux, SSP-RK2 (``traffic``)      L1 at shocks; 0 <= rho <= rho_max
 transient,             py-pde adaptive Runge-Kutta on   cross-check; explicit, so small

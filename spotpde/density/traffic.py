@@ -15,7 +15,7 @@ with ``rho_c = rho_max / 2``, capacity ``q_max = v_s rho_max / 4`` and character
 
 ``m`` is 1 for ``spots.diffusion_scaling = "fixed"`` (default: ``D_s = b v_s`` whatever
 the crowding) and ``m = q / (v_s rho)`` for ``"speed"`` (constant ``b``: the spots'
-diffusivity follows their local speed ``q / rho``). Numerics: :mod:`spotpde._traffic`
+diffusivity follows their local speed ``q / rho``). Numerics: :mod:`spotpde.density._traffic`
 (MUSCL + demand-supply Godunov flux + SSP-RK2, explicit). Units: ``rho`` spots per
 d**dims, ``v_s`` d per unit time, ``q`` spots per d**(dims-1) per unit time.
 
@@ -68,7 +68,7 @@ def transient(grid: Grid, orifice: Orifice, spots: Spots, t_end: float, times=No
         limiter: MUSCL slope limiter, ``"mc"``, ``"vanleer"`` or ``"minmod"``.
         dt: fixed step instead of the automatic one.
         progress: called with the fraction done.
-        full_output: return the diagnostics dict of :func:`spotpde._traffic.integrate`
+        full_output: return the diagnostics dict of :func:`spotpde.density._traffic.integrate`
             (``frames``, ``times``, per-frame ``injected``/``requested``/``outflow`` rates,
             their running time integrals, ``mass``, ``dt``, ``steps``).
 

@@ -521,7 +521,7 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
         spot_diffusivity_tensor: optional full spot diffusivity tensor (keys ``D_xx``,
             ``D_xz``, ...; floats or grid arrays) replacing ``diag(D_perp, D_par)``.
         diffusivity: ``"passage"`` (default): the discrete model's own diffusivity, exact
-            in uniform flow (passage correlations and shot noise, ``spotpde._passage``;
+            in uniform flow (passage correlations and shot noise, ``spotpde.fields._passage``;
             ``b_eff`` the diagonal tensor of ``_passage.effective_spot_length``
             at the source point's ``b``, ``b_par``; docs/coefficients.md, "Beyond mean
             field"); ``"mean-field"``: the paper's eq. Dp. The drift differs by
@@ -530,7 +530,7 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
         walls: ``"renormalise"`` (default): a spot's influence is divided by the fraction
             ``phi`` of its kernel inside the material, so every spot step displaces the
             particle volume ``V1 dR`` and the particle flux through every height is
-            ``V1 Q0`` (``spotpde._walls``, docs/walls.md); ``"truncate"``: the part of the
+            ``V1 Q0`` (``spotpde.fields._walls``, docs/walls.md); ``"truncate"``: the part of the
             kernel beyond a reflecting wall displaces nothing. Identical with open walls.
         mask: optional material indicator for ``phi`` (see ``_walls.coverage``).
 
@@ -749,7 +749,7 @@ def pair_diffusivity(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, r1, r2
 
     Passage (default): the mean field plus the passage correction of the discrete model
     in locally uniform flow, ``V1 f (B_passage(Delta) - B_mean-field(Delta))`` with
-    ``Delta = r1 - r2``, ``B`` the relative tensor of ``spotpde._passage.length_tensor``
+    ``Delta = r1 - r2``, ``B`` the relative tensor of ``spotpde.fields._passage.length_tensor``
     and ``f = rho_s v_s``, ``b``, ``b_par`` taken at the cell of the midpoint (exact in
     uniform flow; docs/coefficients.md section 7).
 

@@ -23,7 +23,7 @@ The kernel spectrum ``rfftn(stencil placed with its centre at index 0)`` is comp
 once per (stencil, field shape, mode, backend) and cached; one call may convolve several
 fields with the same stencil. Backends: planned pyFFTW real transforms (default when
 importable, ``threads`` = cores available, wisdom cached on disk; see
-:mod:`spotpde._fft`) or ``scipy.fft`` with ``workers`` = cores. Both give the same
+:mod:`spotpde.fields._fft`) or ``scipy.fft`` with ``workers`` = cores. Both give the same
 result to round-off. Reference for the scheme: the convolution theorem for the DFT,
 e.g. Press et al., Numerical Recipes, 3rd ed., sec. 13.1 (zero padding against wrap).
 """
@@ -107,7 +107,7 @@ class Convolver:
     """A reusable convolution of fields of one shape with one stencil.
 
     Holds the kernel spectrum; the pyFFTW plans are shared through a cache in
-    :mod:`spotpde._fft`. Calling it is :func:`convolve` without the lookup.
+    :mod:`spotpde.fields._fft`. Calling it is :func:`convolve` without the lookup.
 
     Args:
         stencil: real array, odd size on every axis, centred; same ndim as the fields.

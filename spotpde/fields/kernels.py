@@ -224,7 +224,7 @@ class Kernel:
         ``[(i - 1/2) h, (i + 1/2) h] x [(k - 1/2) h, (k + 1/2) h]`` (3D likewise), so
         ``stencil.sum() * h**dims`` is ``V1`` (power 1) or ``V2`` (power 2). The cell
         averages are exact in closed form (disk, Gaussian) or computed to ~1e-13
-        (sphere, exponential; see :mod:`spotpde._cellavg`); a final rescaling by a factor
+        (sphere, exponential; see :mod:`spotpde.fields._cellavg`); a final rescaling by a factor
         within ~1e-12 of 1 (the 1e-14 cut-off tail and quadrature error) makes the sum
         equal ``V_power`` to round-off.
 

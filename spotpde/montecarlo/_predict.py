@@ -52,7 +52,7 @@ def uniform_flow_prediction(kernel, b: float, flux: float, rule: float = 0.5,
     integral ``Y = -int w(r - s) o_lam ds`` along the spot path; passages are independent,
     so ``D = flux/2 <Y Y>`` (averaged over the spot's horizontal offset). Derivation in
     docs/montecarlo.md section 4 and docs/coefficients.md ("Beyond mean field"); the
-    numbers come from the one quadrature of ``spotpde._passage.length_tensor``:
+    numbers come from the one quadrature of ``spotpde.fields._passage.length_tensor``:
 
     * ``u_z = -V1 flux`` (the continuum's ``-V1 rho_s v_s``);
     * ``D_xx = flux b V2 - lam (1 - lam) flux/2 E[Y^2]``: the mean field, exact for

@@ -16,7 +16,7 @@ spots of density ``rho_s`` and diffusivity ``D_s``, the relative diffusivity is
 
 ``C`` the kernel's normalised autocorrelation (``Kernel.correlation_vector``: anisotropic
 kernels enter through the scaled separation; ``B`` stays diagonal in ``(x, z)``).
-``"passage"`` takes ``B`` from :func:`spotpde._passage.length_tensor` (the discrete
+``"passage"`` takes ``B`` from :func:`spotpde.fields._passage.length_tensor` (the discrete
 model's own pair diffusivity; imported on use).
 
 Boundaries: the hard core is reflecting with zero Ito normal flux
@@ -39,7 +39,7 @@ backward Euler survival integrates to exactly that mean.
 
 Public: :func:`cage_breaking` (-> ``xarray.Dataset``), :func:`relative_tensor`,
 :func:`mean_field_tensor`, :func:`mean_fall_1d`, :func:`passage_simulation`
-(Monte Carlo of the discrete model in :mod:`spotpde._pair_mc`).
+(Monte Carlo of the discrete model in :mod:`spotpde.pair._mc`).
 """
 
 from __future__ import annotations
@@ -100,7 +100,7 @@ def relative_tensor(kernel, b, rule=0.5, b_par=0.0, diffusivity="passage", X=0.0
     """Relative diffusion length tensor ``B^ab(X, Z)`` per unit fall, in d.
 
     ``diffusivity="mean-field"``: :func:`mean_field_tensor`. ``"passage"``:
-    ``spotpde._passage.length_tensor(kernel, b, b_par, rule, diffusivity="passage",
+    ``spotpde.fields._passage.length_tensor(kernel, b, b_par, rule, diffusivity="passage",
     separation=(X, Z))``; with ``b_p`` (local single-particle lengths) each component is
     rescaled by ``b_p^ab / b_p,uniform^ab`` (the local uniform-flow approximation), or,
     where the uniform value vanishes, takes the mean-field form ``2 b_p^ab (1 - C)``.
@@ -113,7 +113,7 @@ def relative_tensor(kernel, b, rule=0.5, b_par=0.0, diffusivity="passage", X=0.0
     try:
         from ..fields import _passage  # noqa: PLC0415  (the diffusion-beyond-mean-field module)
     except ImportError as err:
-        raise ImportError('diffusivity="passage" needs spotpde._passage, which this '
+        raise ImportError('diffusivity="passage" needs spotpde.fields._passage, which this '
                           'installation lacks; use diffusivity="mean-field"') from err
 
     X, Z = np.broadcast_arrays(np.asarray(X, float), np.asarray(Z, float))

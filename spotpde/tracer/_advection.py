@@ -23,7 +23,7 @@ Positivity (our proof, docs/tracer.md): with face values in ``[0, 2 P_c]``, infl
 terms are non-negative and each outward face removes at most ``2 |u_f| P_c dt / h``, so
 forward Euler keeps ``P >= 0`` whenever ``dt * a_c <= 1`` with the per-cell rate
 ``a_c = (2/h) sum_{faces of c} max(outward face velocity, 0)`` (+ the diffusion part,
-see :mod:`spotpde._diffusion`). SSP Runge-Kutta schemes (coefficient 1) keep this bound.
+see :mod:`spotpde.tracer._diffusion`). SSP Runge-Kutta schemes (coefficient 1) keep this bound.
 
 Numerical diffusion (measured with :func:`spotpde.tracer.numerical_diffusion`, cell
 Peclet 100, Gaussian of standard deviation 4 cells travelling 160 cells): Koren adds

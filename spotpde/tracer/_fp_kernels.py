@@ -1,10 +1,10 @@
 """Numba kernels of the tracer Fokker-Planck right-hand side (private).
 
 All kernels work in spotpde array order, ``P[k, i]`` (2D) / ``P[k, j, i]`` (3D) with
-``k`` the z index. Face velocities are precomputed by :mod:`spotpde._advection`
+``k`` the z index. Face velocities are precomputed by :mod:`spotpde.tracer._advection`
 (boundary faces already carry the boundary condition: zero for walls, outflow-only
 for open boundaries), and the diffusion tensor is pre-split into non-negative
-stencil coefficients by :mod:`spotpde._diffusion`. The discretised equations are
+stencil coefficients by :mod:`spotpde.tracer._diffusion`. The discretised equations are
 written out in ``docs/tracer.md`` and in the docstrings of those two modules; this
 module only evaluates them.
 
@@ -59,7 +59,7 @@ FASTMATH = {"contract", "reassoc", "arcp", "nsz"}
 # Compilation options of the row functions (numba overloads, compiled into the kernels).
 _ROW_JIT = {"fastmath": FASTMATH, "error_model": "numpy"}
 
-# Limiter codes used by the kernels (names in spotpde._advection.LIMITERS).
+# Limiter codes used by the kernels (names in spotpde.tracer._advection.LIMITERS).
 UPWIND, MINMOD, VANLEER, MC, KOREN, WENO5 = 0, 1, 2, 3, 4, 6
 
 

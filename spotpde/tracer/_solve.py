@@ -6,8 +6,8 @@ Solves, in Ito form with the full diffusion tensor,
 
 on a :class:`spotpde.grid.Grid` (array order ``(z, x)`` / ``(z, y, x)``, cell centred)
 with cell-centred coefficient fields, steady or time dependent. The scheme (details in
-``docs/tracer.md`` and in :mod:`spotpde._advection`, :mod:`spotpde._diffusion`,
-:mod:`spotpde._timestepping`):
+``docs/tracer.md`` and in :mod:`spotpde.tracer._advection`, :mod:`spotpde.tracer._diffusion`,
+:mod:`spotpde.tracer._timestepping`):
 
 * finite volumes, conservative: ``P`` changes only through face fluxes; boundary
   fluxes (floor over the orifice, open sides, top) are summed into ``outflow`` with

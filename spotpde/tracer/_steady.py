@@ -13,7 +13,7 @@ the mean exit time (for a normalised ``P0``). Derivations and measurements:
 docs/steady.md.
 
 Discretisation: the finite volumes of the tracer with the same diffusion operator
-(the positive 9-point splitting of the tensor, :mod:`spotpde._diffusion`) and the same
+(the positive 9-point splitting of the tensor, :mod:`spotpde.tracer._diffusion`) and the same
 boundary faces; the interior advective face value is the hybrid (Spalding 1972) blend
 
     P*_f = P_up + (theta_f / 2) (P_down - P_up),   theta_f = min(1, 2 A_down / (|u_f| h))
