@@ -110,11 +110,7 @@ def relative_tensor(kernel, b, rule=0.5, b_par=0.0, diffusivity="passage", X=0.0
     if diffusivity == "mean-field":
         return mean_field_tensor(kernel, b, b_par, X, Z, b_p=b_p)
     _check_kernel_2d(kernel)
-    try:
-        from ..fields import _passage  # noqa: PLC0415  (the diffusion-beyond-mean-field module)
-    except ImportError as err:
-        raise ImportError('diffusivity="passage" needs spotpde.fields._passage, which this '
-                          'installation lacks; use diffusivity="mean-field"') from err
+    from ..fields import _passage  # the discrete model's passage statistics
 
     X, Z = np.broadcast_arrays(np.asarray(X, float), np.asarray(Z, float))
     B = _passage.length_tensor(kernel, b, b_par, rule, diffusivity="passage",
