@@ -30,6 +30,11 @@ Array conventions follow ``docs/architecture.md``: float64 arrays in array order
 or ``(z, y, x)``; vector and tensor fields are dicts keyed ``u_x, [u_y,] u_z`` and
 ``D_xx, D_xz, D_zz, [D_yy, D_xy, D_yz]``. Units: lengths in d, times in the case's unit,
 ``u_p`` in d per unit time, ``D_p`` in d**2 per unit time.
+
+The wall layer is computed in ``_wall_layer``; the two-point statistics
+:func:`velocity_correlation` and :func:`pair_diffusivity` (cross integrals
+``X^ab(r1, r2) = integral rho_s D_s^ab w(r1 - s) w(r2 - s) ds``) in ``_pairs``, both
+re-exported here.
 """
 
 from __future__ import annotations
@@ -40,6 +45,11 @@ import numpy as np
 import scipy.signal
 
 from . import _walls
+# the two-point statistics and the wall layer live beside this module; their private
+# helpers stay importable from here (_passage uses _as_point)
+from ._pairs import (_as_point, _cross_integrals, _two_point_integrals, pair_diffusivity,
+                     velocity_correlation)
+from ._wall_layer import _face_value, _wall_layer, add_wall_layer
 from .._roundoff import clip_roundoff
 from ..grid import DIFFUSIVITY_KEYS, DRIFT_KEYS, Grid, derivative
 from ..parameters import Spots
@@ -59,8 +69,6 @@ __all__ = [
 _COMPONENTS = {2: ("x", "z"), 3: ("x", "y", "z")}
 #: Sub-samples per cell and axis for kernel quadratures at arbitrary points.
 _SUBSAMPLE = 6
-#: Largest number of quadrature points of one cross integral (fewer sub-samples beyond).
-_MAX_POINTS = 4_000_000
 
 
 # -- small helpers -----------------------------------------------------------------------
@@ -244,71 +252,6 @@ class _Convolutions:
                 if self.use[q][0] == p:
                     out[(n, q)] = done[n] * (hd * self.use[q][1])
         return out
-
-
-# -- the wall layer --------------------------------------------------------------------------
-
-def _face_value(f: np.ndarray, axis: int, side: int) -> np.ndarray:
-    """Value on the boundary face from the three nearest cell centres (third order)."""
-    idx = (0, 1, 2) if side < 0 else (-1, -2, -3)
-    f0, f1, f2 = (np.take(f, i, axis=axis) for i in idx)
-    return (15.0 * f0 - 10.0 * f1 + 3.0 * f2) / 8.0
-
-
-def _wall_layer(grid: Grid, kernel, comp: str, g_face: Mapping[int, np.ndarray]) -> np.ndarray:
-    """``sum_walls integral g(r_w) w(r - r_w) dA_w`` for the two walls normal to ``comp``.
-
-    Args:
-        grid: the grid.
-        kernel: influence kernel (``evaluate``, ``reach``).
-        comp: ``"x"`` or ``"y"``: the wall normal.
-        g_face: ``{-1: g on the low wall, +1: g on the high wall}``, arrays over the wall
-            (the grid shape with the normal axis removed), already multiplied by ``n``.
-
-    Returns:
-        grid-shaped array. The tangential integral is a discrete sum over wall cells with
-        ``w`` averaged over each cell (sub-sampled); along the normal, ``w`` is evaluated
-        at the particle's cell centre.
-    """
-    h = grid.spacing
-    axis = _axis(grid, comp)
-    reach_h, reach_v = kernel.reach
-    comps = _COMPONENTS[grid.dims]
-    tangential = [c for c in ("z", "y", "x") if c in comps and c != comp]
-    lo, hi = grid.x_range
-    n_normal = grid.shape[axis]
-    out = np.zeros(grid.shape)
-    # tangential stencil offsets (in cells), centred, covering the reach
-    half = {c: int(np.ceil((reach_v if c == "z" else reach_h) / h)) + 1 for c in tangential}
-    sub = (np.arange(_SUBSAMPLE) + 0.5) / _SUBSAMPLE - 0.5
-    t_offsets = [np.add.outer(np.arange(-half[c], half[c] + 1) * h, sub * h).ravel()
-                 for c in tangential]
-    t_mesh = np.meshgrid(*t_offsets, indexing="ij")
-    jmax = min(n_normal, int(np.ceil(reach_h / h)) + 1)
-    for side, g in g_face.items():
-        if _is_zero(g) or not np.any(g):
-            continue
-        wall = hi if side > 0 else lo
-        for j in range(jmax):
-            i = n_normal - 1 - j if side > 0 else j
-            centre = lo + (i + 0.5) * h
-            coords = {comp: np.full(t_mesh[0].shape, centre - wall)}
-            coords.update({c: m for c, m in zip(tangential, t_mesh)})
-            # kernel offsets r - r_w; evaluate takes (x, z) or (x, y, z)
-            args = [coords[c] for c in comps]
-            w = np.asarray(kernel.evaluate(*args), dtype=float)
-            if not np.any(w):
-                continue
-            # average the sub-samples of each tangential cell
-            shape = []
-            for c in tangential:
-                shape += [2 * half[c] + 1, _SUBSAMPLE]
-            w = w.reshape(shape).mean(axis=tuple(range(1, 2 * len(tangential), 2)))
-            layer = scipy.signal.convolve(g, w, mode="same", method="direct" if w.size < 400 else "auto")
-            idx = [slice(None)] * grid.dims
-            idx[axis] = i
-            out[tuple(idx)] += layer * h ** (grid.dims - 1)
-    return out
 
 
 # -- constant coefficients: one convolution of rho_s -----------------------------------------
@@ -574,19 +517,7 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
         _passage.keep_flux_velocity(grid, rho_s, D_s, D_source, kernel, fields, phi)
 
     # wall layer of the reflecting side walls: (1 - 2 lam) int (D_s rho_s)^ab n_b w dA
-    if grid.walls == "reflecting" and lam != 0.5:
-        for n in comps:
-            if n == "z":
-                continue
-            axis = _axis(grid, n)
-            for a in comps:
-                g = G[_pair(a, n)]
-                if g is None:
-                    continue
-                faces = {-1: -_face_value(g, axis, -1), +1: _face_value(g, axis, +1)}
-                if phi is not None:  # renormalised: (D_s rho_s)·n / phi on the wall
-                    faces = {s: v / _walls.face_value(phi, axis, s) for s, v in faces.items()}
-                fields[f"u_{a}"] += (1.0 - 2.0 * lam) * _wall_layer(grid, kernel, n, faces)
+    add_wall_layer(grid, kernel, lam, G, phi, fields)
     # D_p = w^2 * (rho_s D_s) has a non-negative diagonal; the FFT leaves round-off
     # negatives (~1e-17 of the peak) where it vanishes, which the tracer would reject
     for a in comps:
@@ -630,147 +561,3 @@ def incompressibility_defect(grid: Grid, fields: Mapping[str, np.ndarray]) -> np
     """
     flux = flux_velocity(grid, fields)
     return sum(_gradient(grid, flux[f"u_{a}"], a) for a in _COMPONENTS[grid.dims])
-
-
-def _as_point(grid: Grid, r, name: str) -> np.ndarray:
-    p = np.asarray(r, dtype=float).reshape(-1)
-    if p.shape != (grid.dims,):
-        raise ValueError(f"{name}: a point needs {grid.dims} coordinates "
-                         f"({', '.join(_COMPONENTS[grid.dims])}), got {r!r}")
-    return p
-
-
-def _cross_integrals(grid: Grid, rho_s: np.ndarray, D_s: Mapping, kernel, r1: np.ndarray,
-                     r2: np.ndarray) -> dict[str, float]:
-    """``X^ab(r1, r2) = integral rho_s D_s^ab w(r1 - s) w(r2 - s) ds`` over the silo.
-
-    Sub-samples every cell ``_SUBSAMPLE`` times per axis (rho_s, D_s constant per cell;
-    fewer when the box would exceed ``_MAX_POINTS`` points), on the cells within the
-    kernel's reach of both points, slab by slab in z.
-    """
-    comps = _COMPONENTS[grid.dims]
-    h = grid.spacing
-    reach_h, reach_v = kernel.reach
-    coords = grid.coords()
-    sl = []
-    for c in grid.axes:  # array order
-        reach = reach_v if c == "z" else reach_h
-        i = comps.index(c)
-        lo, hi = max(r1[i], r2[i]) - reach - h, min(r1[i], r2[i]) + reach + h
-        idx = np.nonzero((coords[c] >= lo) & (coords[c] <= hi))[0]
-        if idx.size == 0:
-            return {k: 0.0 for k in DIFFUSIVITY_KEYS[grid.dims]}
-        sl.append(slice(idx[0], idx[-1] + 1))
-    sl = tuple(sl)
-    n_cells = int(np.prod([x.stop - x.start for x in sl]))
-    # sub-samples per cell and axis: _SUBSAMPLE, fewer if the box is large (bounded work)
-    ns = int(max(1, min(_SUBSAMPLE, np.floor((_MAX_POINTS / n_cells) ** (1.0 / grid.dims)))))
-    sub = ((np.arange(ns) + 0.5) / ns - 0.5) * h
-    dv = (h / ns) ** grid.dims
-    terms = {k: d for k, d in D_s.items() if not _is_zero(d)}
-    out = {k: 0.0 for k in D_s}
-
-    def refine(a, s_):
-        if np.ndim(a) == 0:
-            return a
-        a = np.asarray(a, dtype=float)[s_]
-        for ax in range(a.ndim):
-            a = np.repeat(a, ns, axis=ax)
-        return a
-
-    z_slice = sl[0]
-    per_row = max(1, n_cells // (z_slice.stop - z_slice.start))
-    step = max(1, int(_MAX_POINTS // (per_row * ns**grid.dims)) or 1)
-    for k0 in range(z_slice.start, z_slice.stop, step):  # slabs in z bound the memory
-        s_ = (slice(k0, min(k0 + step, z_slice.stop)),) + sl[1:]
-        pts = [np.add.outer(coords[c][x], sub).ravel() for c, x in zip(grid.axes, s_)]
-        mesh = dict(zip(grid.axes, np.meshgrid(*pts, indexing="ij", sparse=True)))
-        w1 = kernel.evaluate(*[r1[comps.index(c)] - mesh[c] for c in comps])
-        w2 = kernel.evaluate(*[r2[comps.index(c)] - mesh[c] for c in comps])
-        base = refine(rho_s, s_) * w1 * w2
-        for k, d in terms.items():
-            out[k] += float(np.sum(base * refine(d, s_)) * dv)
-    return out
-
-
-def _two_point_integrals(grid: Grid, rho_s, spots: Spots, kernel, r1, r2,
-                         spot_diffusivity_tensor: Mapping | None):
-    """Checked inputs, then ``(X(r1, r2), X(r1, r1), X(r2, r2))`` of :func:`_cross_integrals`."""
-    rho_s = _check_inputs(grid, rho_s, kernel)
-    p1, p2 = _as_point(grid, r1, "r1"), _as_point(grid, r2, "r2")
-    D_s = spot_diffusivity(grid, spots, spot_diffusivity_tensor)
-    return (_cross_integrals(grid, rho_s, D_s, kernel, p1, p2),
-            _cross_integrals(grid, rho_s, D_s, kernel, p1, p1),
-            _cross_integrals(grid, rho_s, D_s, kernel, p2, p2))
-
-
-def velocity_correlation(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, r1, r2,
-                         spot_diffusivity_tensor: Mapping | None = None) -> dict[str, float]:
-    """Two-point particle velocity correlation tensor ``C_p(r1, r2)`` (the paper's eq. Cp).
-
-    ``C^ab = X^ab(r1, r2) / sqrt(X^aa(r1, r1) X^bb(r2, r2))`` with
-    ``X^ab(r1, r2) = integral rho_s D_s^ab w(r1 - s) w(r2 - s) ds``, so ``X(r, r) = D_p(r)``.
-    The normalisation uses the diagonal components, as the definition eq. Cdef does
-    (the printed eq. Cp writes ``D_p^ab`` under the root, which is only right for
-    ``a = b``). In uniform flow ``C^aa`` is the kernel's ``correlation(r1 - r2)``.
-    Integrals are sub-sampled quadratures over the silo (zero outside it).
-
-    Args:
-        grid: the grid.
-        rho_s: spot density, grid-shaped.
-        spots: spot parameters (``D_s``).
-        kernel: influence kernel (``evaluate``, ``reach``).
-        r1, r2: points ``(x, z)`` or ``(x, y, z)`` in d.
-        spot_diffusivity_tensor: optional full ``D_s`` (see :func:`particle_fields`).
-
-    Returns:
-        ``{"C_xx": ..., "C_xz": ..., ...}`` (dimensionless; 0 where a component of ``D_s``
-        vanishes).
-    """
-    X, X1, X2 = _two_point_integrals(grid, rho_s, spots, kernel, r1, r2,
-                                     spot_diffusivity_tensor)
-    out = {}
-    for key in DIFFUSIVITY_KEYS[grid.dims]:
-        a, b = key[2], key[3]
-        norm = np.sqrt(X1[f"D_{a}{a}"] * X2[f"D_{b}{b}"])
-        out["C_" + key[2:]] = X[key] / norm if norm > 0 else 0.0
-    return out
-
-
-def pair_diffusivity(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, r1, r2,
-                     spot_diffusivity_tensor: Mapping | None = None, *, rule: float = 0.5,
-                     diffusivity: str = "passage") -> dict[str, float]:
-    """Diffusivity tensor of the separation ``r1 - r2`` of two tracer particles.
-
-    Mean field (``diffusivity="mean-field"``): ``D^ab(r1, r2) = D_p^ab(r1) + D_p^ab(r2) -
-    2 X^ab(r1, r2)`` with ``X`` the cross integral of :func:`velocity_correlation` (the
-    paper's section "Relative Diffusion of Two Tracers"); in uniform flow
-    ``D^aa = 2 D_p^aa (1 - C_p^aa(r))``.
-
-    Passage (default): the mean field plus the passage correction of the discrete model
-    in locally uniform flow, ``V1 f (B_passage(Delta) - B_mean-field(Delta))`` with
-    ``Delta = r1 - r2``, ``B`` the relative tensor of ``spotpde.fields._passage.length_tensor``
-    and ``f = rho_s v_s``, ``b``, ``b_par`` taken at the cell of the midpoint (exact in
-    uniform flow; docs/coefficients.md section 7).
-
-    Args:
-        grid, rho_s, spots, kernel, r1, r2, spot_diffusivity_tensor: as in
-            :func:`velocity_correlation`.
-        rule: ``lam`` (used by the passage correction only).
-        diffusivity: ``"passage"`` (default) or ``"mean-field"``.
-
-    Returns:
-        ``{"D_xx": ..., "D_xz": ..., ...}`` in d**2 per unit time.
-    """
-    if diffusivity not in ("passage", "mean-field"):
-        raise ValueError(f"diffusivity: must be 'passage' or 'mean-field', got {diffusivity!r}")
-    lam = _check_rule(rule)
-    X, X1, X2 = _two_point_integrals(grid, rho_s, spots, kernel, r1, r2,
-                                     spot_diffusivity_tensor)
-    out = {k: X1[k] + X2[k] - 2.0 * X[k] for k in DIFFUSIVITY_KEYS[grid.dims]}
-    if diffusivity == "passage":
-        from . import _passage
-
-        _passage.add_pair_correction(grid, rho_s, spots, kernel, r1, r2,
-                                     spot_diffusivity_tensor, lam, out)
-    return out

@@ -10,8 +10,8 @@ numerical diffusion and :func:`sde_ensemble` is the grid-free Euler-Maruyama ref
 Schemes and their properties: docs/tracer.md.
 """
 
-from ._solve import (DIFFUSION_MODES, TracerResult, numerical_diffusion, required_fields,
-                     sde_ensemble, solve)
+from ._diagnostics import numerical_diffusion, sde_ensemble
+from ._solve import DIFFUSION_MODES, TracerResult, required_fields, solve
 from ._steady import SteadyResult, solve_steady_public as solve_steady
 
 __all__ = ["DIFFUSION_MODES", "TracerResult", "numerical_diffusion", "required_fields",

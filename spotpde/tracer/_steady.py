@@ -310,7 +310,7 @@ def solve_steady_public(grid, fields, P0, *, scheme: str = "hybrid",
         ValueError: bad ``P0``, ``scheme``, ``outlet`` or fields (the message names it).
         NumericalError: the region the tracer reaches has no way out.
     """
-    from ._solve import _check_fields
+    from ._operator import _check_fields
     if callable(fields) or not hasattr(fields, "keys"):
         raise TypeError("solve_steady: fields must be a dict of steady arrays (time-"
                         f"dependent fields have no steady propagator), got "
