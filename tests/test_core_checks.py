@@ -35,13 +35,18 @@ def test_pair_diffusivity_is_symmetric_and_adds_one_particle_diffusivities():
     kernel = kernels.Gaussian(sigma=0.8, volume=0.05, dims=2)
     # pair_diffusivity integrates the plain kernel (no wall renormalisation): compare
     # with the one-particle fields of the same kernel (r1 is 1.9 d from a wall)
-    f = C.particle_fields(grid, rho, spots, kernel, rule=0.5, walls="truncate")
+    # mean field: pairs share a spot only where their kernels overlap (in the discrete
+    # model a spot that passes one particle rises on and may pass the other: the passage
+    # cross term reaches far vertically; tests/test_passage.py)
+    f = C.particle_fields(grid, rho, spots, kernel, rule=0.5, walls="truncate",
+                          diffusivity="mean-field")
+    MF = {"diffusivity": "mean-field"}
     i1, k1, i2, k2 = 7, 12, 32, 40                 # cell centres (x, z) = (-6.125, 3.125), (0.125, 10.125)
     r1 = (grid.x[i1], grid.z[k1])
     r2 = (grid.x[i2], grid.z[k2])
     assert f["D_xx"][k2, i2] > 3 * f["D_xx"][k1, i1] > 0   # the flow is far from uniform here
-    far = C.pair_diffusivity(grid, rho, spots, kernel, r1, r2)
-    swapped = C.pair_diffusivity(grid, rho, spots, kernel, r2, r1)
+    far = C.pair_diffusivity(grid, rho, spots, kernel, r1, r2, **MF)
+    swapped = C.pair_diffusivity(grid, rho, spots, kernel, r2, r1, **MF)
     for key in ("D_xx", "D_xz", "D_zz"):
         assert far[key] == pytest.approx(swapped[key], rel=1e-12, abs=1e-20)
     # 9.4 d apart: no shared spot (exp(-r^2 / 4 sigma^2) ~ 1e-14), so D = D_p(r1) + D_p(r2)
@@ -50,8 +55,8 @@ def test_pair_diffusivity_is_symmetric_and_adds_one_particle_diffusivities():
         assert far[key] == pytest.approx(one, rel=2e-3), key
     # close pairs: symmetric, and between 0 and the sum
     r3 = (grid.x[i1 + 4], grid.z[k1 + 2])
-    a = C.pair_diffusivity(grid, rho, spots, kernel, r1, r3)
-    b = C.pair_diffusivity(grid, rho, spots, kernel, r3, r1)
+    a = C.pair_diffusivity(grid, rho, spots, kernel, r1, r3, **MF)
+    b = C.pair_diffusivity(grid, rho, spots, kernel, r3, r1, **MF)
     assert a["D_xx"] == pytest.approx(b["D_xx"], rel=1e-12)
     assert 0 < a["D_xx"] < 0.5 * (f["D_xx"][k1, i1] + f["D_xx"][k1 + 2, i1 + 4])
 

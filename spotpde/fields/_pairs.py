@@ -149,11 +149,15 @@ def pair_diffusivity(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, r1, r2
     paper's section "Relative Diffusion of Two Tracers"); in uniform flow
     ``D^aa = 2 D_p^aa (1 - C_p^aa(r))``.
 
-    Passage (default): the mean field plus the passage correction of the discrete model
-    in locally uniform flow, ``V1 f (B_passage(Delta) - B_mean-field(Delta))`` with
-    ``Delta = r1 - r2``, ``B`` the relative tensor of ``spotpde.fields._passage.length_tensor``
-    and ``f = rho_s v_s``, ``b``, ``b_par`` taken at the cell of the midpoint (exact in
-    uniform flow; docs/coefficients.md section 7).
+    Passage (default): each particle's own passage diffusivity, the local form of
+    :func:`particle_fields` (``integral rho_s T w(r_i - s)^2 ds`` with ``T`` of
+    ``_passage.source_tensor``), minus twice the passage cross term, taken in locally
+    uniform flow at the cell of the midpoint: ``D = D_p(r1) + D_p(r2) - 2 X_mf(r1, r2)
+    - V1 f [(2 b_p - B)_passage - (2 b_p - B)_mean-field](Delta)``, ``Delta = r1 - r2``,
+    ``B`` the relative tensor of ``spotpde.fields._passage.length_tensor``, ``f = rho_s
+    v_s``, ``b``, ``b_par`` at the midpoint. Exact in uniform flow, and the sum of the two
+    particles' own passage diffusivities once they share no spot (docs/coefficients.md
+    section 7).
 
     Args:
         grid, rho_s, spots, kernel, r1, r2, spot_diffusivity_tensor: as in
@@ -174,7 +178,16 @@ def pair_diffusivity(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, r1, r2
     out = {k: X1[k] + X2[k] - 2.0 * X[k] for k in DIFFUSIVITY_KEYS[grid.dims]}
     if diffusivity == "passage":
         from . import _passage
+        from .coefficients import spot_diffusivity
 
+        D_s = spot_diffusivity(grid, spots, spot_diffusivity_tensor)
+        T = _passage.source_tensor(grid, spots, D_s, kernel, lam)
+        p1, p2 = _as_point(grid, r1, "r1"), _as_point(grid, r2, "r2")
+        rho = np.asarray(rho_s, dtype=float)
+        for p, X_mf in ((p1, X1), (p2, X2)):   # each particle's own D_p: passage for mean field
+            own = _cross_integrals(grid, rho, T, kernel, p, p)
+            for k in out:
+                out[k] += own.get(k, 0.0) - X_mf[k]
         _passage.add_pair_correction(grid, rho_s, spots, kernel, r1, r2,
                                      spot_diffusivity_tensor, lam, out)
     return out

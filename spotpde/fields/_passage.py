@@ -517,10 +517,13 @@ def keep_flux_velocity(grid, rho_s, D_s, D_source, kernel, fields: dict, phi=Non
 
 def add_pair_correction(grid, rho_s, spots, kernel, r1, r2, spot_diffusivity_tensor, lam,
                         out: dict) -> None:
-    """Add ``V1 f (B_passage(r1 - r2) - B_mean-field(r1 - r2))`` to a mean-field pair tensor.
+    """Replace the mean-field cross term of a pair tensor by the passage one.
 
-    ``f = rho_s v_s``, ``b``, ``b_par`` at the grid cell of the midpoint (locally uniform
-    flow; exact in uniform flow). ``out``: ``{"D_xx": ..., ...}``, modified in place.
+    Adds ``V1 f [(B_passage - B_mf)(r1 - r2) - 2 (b_p,passage - b_p,mf)]``: the change of
+    ``-2 X`` (``B = 2 b_p - 2 X / (V1 f)`` in uniform flow), to a tensor whose one-particle
+    terms are already the passage ones. ``f = rho_s v_s``, ``b``, ``b_par`` at the grid
+    cell of the midpoint (locally uniform flow; exact in uniform flow; zero once the pair
+    shares no spot). ``out``: ``{"D_xx": ..., ...}``, modified in place.
     """
     from .coefficients import _COMPONENTS, _as_point, spot_diffusivity
 
@@ -540,6 +543,9 @@ def add_pair_correction(grid, rho_s, spots, kernel, r1, r2, spot_diffusivity_ten
     b, b_par = at["D_xx"] / v_s, at["D_zz"] / v_s
     Bp = length_tensor(kernel, b, b_par, lam, separation=sep)
     Bm = length_tensor(kernel, b, b_par, lam, diffusivity="mean-field", separation=sep)
+    bp = length_tensor(kernel, b, b_par, lam)
+    bm = length_tensor(kernel, b, b_par, lam, diffusivity="mean-field")
     for key in out:
         t = key[2:]
-        out[key] += kernel.V1 * flux * float(Bp[t][0] - Bm[t][0])
+        cross = float(Bp[t][0] - Bm[t][0]) - 2.0 * float(bp[t] - bm[t])
+        out[key] += kernel.V1 * flux * cross
