@@ -158,7 +158,7 @@ def renormalised_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: f
     the face values of both, each extrapolated to third order: ``phi`` is smooth at a
     wall, ``1/phi`` much less so).
     """
-    from .coefficients import _COMPONENTS, _is_zero, divergence
+    from .coefficients import _COMPONENTS, _assemble, _is_zero, divergence
 
     comps = _COMPONENTS[grid.dims]
     inv = 1.0 / phi
@@ -183,18 +183,7 @@ def renormalised_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: f
     else:
         u_terms["z"].append((-1.0, conv.request("rho_v_phi", rho_s * v_s * inv, 1)))
     res = conv.run()
-    fields = {}
-    for a in comps:
-        acc = np.zeros(grid.shape)
-        for factor, key in u_terms[a]:
-            acc += factor * res[key]
-        fields[f"u_{a}"] = acc
-    for key in D_s:
-        if key in D_terms:
-            factor, rkey = D_terms[key]
-            fields[key] = factor * res[rkey]
-        else:
-            fields[key] = np.zeros(grid.shape)
+    fields = _assemble(grid, comps, u_terms, D_terms, D_s, res)
     fields["_G"] = G
     fields["_phi"] = phi
     return fields

@@ -358,6 +358,25 @@ def _constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, la
     return fields
 
 
+def _assemble(grid: Grid, comps, u_terms: Mapping, D_terms: Mapping, D_s: Mapping,
+              res: Mapping) -> dict[str, np.ndarray]:
+    """Sum the convolved sources into the fields: ``u_a = sum factor * res[key]`` over
+    ``u_terms[a]``, ``D^ab = factor * res[key]`` of ``D_terms`` (zero where absent)."""
+    fields = {}
+    for a in comps:
+        acc = np.zeros(grid.shape)
+        for factor, key in u_terms[a]:
+            acc += factor * res[key]
+        fields[f"u_{a}"] = acc
+    for key in D_s:
+        if key in D_terms:
+            factor, rkey = D_terms[key]
+            fields[key] = factor * res[rkey]
+        else:
+            fields[key] = np.zeros(grid.shape)
+    return fields
+
+
 def _general_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: float,
                     conv: _Convolutions, D_source: Mapping | None = None) -> dict[str, np.ndarray]:
     """``u_p`` and ``D_p`` for coefficients that vary in space: one transform per source.
@@ -414,18 +433,7 @@ def _general_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: float
         u_terms["z"].append((-1.0, conv.request("rho_v", rho_s * v_s, 1)))
 
     res = conv.run()
-    fields = {}
-    for a in comps:
-        acc = np.zeros(grid.shape)
-        for factor, key in u_terms[a]:
-            acc += factor * res[key]
-        fields[f"u_{a}"] = acc
-    for key in D_s:
-        if key in D_terms:
-            factor, rkey = D_terms[key]
-            fields[key] = factor * res[rkey]
-        else:
-            fields[key] = np.zeros(grid.shape)
+    fields = _assemble(grid, comps, u_terms, D_terms, D_s, res)
     fields["_G"] = G
     if diff_terms:
         fields["_diff"] = {key: res[k] for key, k in diff_terms.items()}
