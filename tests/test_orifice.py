@@ -108,14 +108,14 @@ def test_rate_table_interpolates_linearly():
     assert q(5.0) == pytest.approx(2.0)
     assert q(15.0) == pytest.approx(1.5)
     assert q(-1.0) == 1.0 and q(30.0) == 0.0
-    with pytest.raises(CaseError, match="strictly increasing"):
+    with pytest.raises(ValueError, match="strictly increasing"):
         rate_from_table([0.0, 0.0], [1.0, 2.0])
-    with pytest.raises(CaseError, match=">= 0"):
+    with pytest.raises(ValueError, match=">= 0"):
         rate_from_table([0.0, 1.0], [1.0, -2.0])
 
 
 def test_invalid_orifice_names_key_and_choices():
-    with pytest.raises(CaseError, match=r"orifice.profile: must be one of 'uniform', 'gaussian'"):
+    with pytest.raises(ValueError, match=r"orifice.profile: must be one of 'uniform', 'gaussian'"):
         source_profile(grid(), Orifice(profile="box"))
-    with pytest.raises(CaseError, match=r"orifice.x"):
+    with pytest.raises(ValueError, match=r"orifice.x"):
         source_profile(grid(), Orifice(x=9.0))

@@ -339,13 +339,13 @@ def test_solve_dispatches_on_mode():
 
 def test_invalid_spots_name_the_key():
     g = Grid(2, (-3, 3), (0, 3), 0.25)
-    with pytest.raises(CaseError, match=r"spots.b: must be > 0"):
+    with pytest.raises(ValueError, match=r"spots.b: must be > 0"):
         sd.steady(g, Orifice(), Spots(b=-1.0))
-    with pytest.raises(CaseError, match=r"spots.drift: an array must have the grid shape"):
+    with pytest.raises(ValueError, match=r"spots.drift: an array must have the grid shape"):
         sd.steady(g, Orifice(), Spots(drift=np.ones(5)))
-    with pytest.raises(CaseError, match=r"spots.mode: must be one of 'steady', 'transient'"):
+    with pytest.raises(ValueError, match=r"spots.mode: must be one of 'steady', 'transient'"):
         sd.solve(g, Orifice(), Spots(mode="fast"))
-    with pytest.raises(CaseError, match=r"orifice.rate"):
+    with pytest.raises(ValueError, match=r"orifice.rate"):
         sd.steady(g, Orifice(rate=lambda t: 1.0), Spots())
 
 

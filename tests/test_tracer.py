@@ -17,7 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from spotpde import tracer
-from spotpde.errors import CaseError, NumericalError
+from spotpde.errors import NumericalError
 from spotpde.grid import Grid
 
 
@@ -315,13 +315,13 @@ def test_result_shapes_progress_and_errors():
     assert 0 < res.max_cfl <= 0.9 + 1e-12
     bad = dict(fields)
     del bad["D_xz"]
-    with pytest.raises(CaseError, match="D_xz"):
+    with pytest.raises(ValueError, match="D_xz"):
         tracer.solve(grid, bad, P0, 1.0, 2)
     with pytest.raises(ValueError, match="koren"):
         tracer.solve(grid, fields, P0, 1.0, 2, limiter="superbee2")
     with pytest.raises(ValueError, match="^frames: must be an integer"):
         tracer.solve(grid, fields, P0, 1.0, 1)
-    with pytest.raises(CaseError, match="positive semidefinite"):
+    with pytest.raises(ValueError, match="positive semidefinite"):
         tracer.solve(grid, dict(fields, D_xz=0.02), P0, 1.0, 2)
 
 

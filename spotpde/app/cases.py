@@ -267,7 +267,10 @@ def _check_kernel(case: Case) -> None:
     except (ValueError, ArithmeticError, TypeError) as exc:
         lines = str(exc).splitlines() or [type(exc).__name__]
         raise CaseError([f"kernel: {line}" for line in lines]) from None
-    orifice.source_profile(case.grid, case.orifice)
+    try:
+        orifice.source_profile(case.grid, case.orifice)
+    except ValueError as exc:      # the library names its argument: orifice.x, ...
+        raise CaseError(str(exc).splitlines()) from None
 
 
 def _warn_wide_kernel(data: Mapping) -> None:

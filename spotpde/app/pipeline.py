@@ -89,10 +89,12 @@ def run(case: Case | str, progress: Progress | None = None, *,
         with FrameWriter(path, case.grid, case.tracer.frames) as writer:
             written = writer.finish(_run(case, progress, on_frame=writer))
         return xr.open_dataset(written, engine="netcdf4", chunks={})  # P: one frame a chunk
-    except CaseError as err:
-        # The case passed validation, so a solver refusing its inputs here is refusing
-        # derived data (fields, densities): a numerical failure, not an invalid case.
-        raise NumericalError("; ".join(err.problems)) from None
+    except ValueError as err:
+        # The case passed validation, so a solver refusing its inputs here (ValueError
+        # naming its argument) is refusing derived data (fields, densities): a numerical
+        # failure, not an invalid case.
+        lines = err.problems if isinstance(err, CaseError) else str(err).splitlines()
+        raise NumericalError("; ".join(lines)) from None
 
 
 def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:

@@ -31,7 +31,6 @@ from typing import Callable, Sequence
 import numpy as np
 from scipy.special import erf, j1
 
-from ..errors import CaseError
 from ..grid import Grid
 from ..parameters import PROFILES, Orifice
 
@@ -46,7 +45,7 @@ __all__ = [
 
 # -- validation and rates -------------------------------------------------------------
 def check_orifice(grid: Grid, orifice: Orifice) -> None:
-    """Raise :class:`CaseError` naming every invalid orifice key.
+    """Raise :class:`ValueError` naming every invalid orifice key.
 
     Args:
         grid: the computational grid.
@@ -70,7 +69,7 @@ def check_orifice(grid: Grid, orifice: Orifice) -> None:
         if not (np.isfinite(q) and q >= 0):
             problems.append(f"orifice.rate: must be a finite number >= 0, got {orifice.rate!r}")
     if problems:
-        raise CaseError(problems)
+        raise ValueError("\n".join(problems))
 
 
 def rate_from_table(times: Sequence[float], values: Sequence[float]) -> Callable[[float], float]:
@@ -89,16 +88,16 @@ def rate_from_table(times: Sequence[float], values: Sequence[float]) -> Callable
     t = np.asarray(times, dtype=float)
     q = np.asarray(values, dtype=float)
     if t.ndim != 1 or q.shape != t.shape or t.size == 0:
-        raise CaseError(
-            f"orifice.rate: a table needs equal-length 1D times and values, got shapes "
+        raise ValueError(
+            f"times, values: a rate table needs equal-length 1D times and values, got shapes "
             f"{t.shape} and {q.shape}"
         )
     if not (np.all(np.isfinite(t)) and np.all(np.isfinite(q))):
-        raise CaseError("orifice.rate: table entries must be finite numbers")
+        raise ValueError("times, values: table entries must be finite numbers")
     if np.any(np.diff(t) <= 0):
-        raise CaseError("orifice.rate: table times must be strictly increasing")
+        raise ValueError("times: must be strictly increasing")
     if np.any(q < 0):
-        raise CaseError(f"orifice.rate: table values must be >= 0, got min {q.min()}")
+        raise ValueError(f"values: must be >= 0, got min {q.min()}")
 
     def rate(time):
         out = np.interp(time, t, q)
@@ -217,7 +216,7 @@ def source_profile(grid: Grid, orifice: Orifice) -> np.ndarray:
         w = wy[:, None] * wx[None, :]
     total = w.sum()
     if not total > 0:
-        raise CaseError(
+        raise ValueError(
             f"orifice.x: the orifice at x={orifice.x} (width {orifice.width}) injects nothing "
             f"inside the floor {grid.x_range}"
         )

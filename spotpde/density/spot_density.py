@@ -40,7 +40,6 @@ from typing import Callable
 import numpy as np
 
 from . import _elliptic, _marching, _spectral, _transient
-from ..errors import CaseError
 from ..grid import Grid
 from .orifice import check_orifice, source_profile
 from ..parameters import SPOT_MODES, Orifice, Spots
@@ -52,7 +51,7 @@ Progress = Callable[[float], None] | None
 
 # -- validation -------------------------------------------------------------------------
 def check_spots(grid: Grid, spots: Spots) -> None:
-    """Raise :class:`CaseError` naming every invalid ``spots`` key.
+    """Raise :class:`ValueError` naming every invalid ``spots`` key.
 
     Args:
         grid: the grid (array coefficients must have its shape).
@@ -74,7 +73,7 @@ def check_spots(grid: Grid, spots: Spots) -> None:
     if spots.mode not in SPOT_MODES:
         problems.append(f"spots.mode: must be one of {', '.join(map(repr, SPOT_MODES))}, got {spots.mode!r}")
     if problems:
-        raise CaseError(problems)
+        raise ValueError("\n".join(problems))
 
 
 # -- open walls: padding -------------------------------------------------------------------
@@ -118,7 +117,7 @@ def _is_uniform(c) -> bool:
 
 def _constant_rate(orifice: Orifice) -> float:
     if callable(orifice.rate):
-        raise CaseError("orifice.rate: a steady solve needs a constant rate Q0, got a function of time")
+        raise ValueError("orifice.rate: a steady solve needs a constant rate Q0, got a function of time")
     return float(orifice.rate)
 
 
@@ -150,7 +149,7 @@ def steady(grid: Grid, orifice: Orifice, spots: Spots, progress: Progress = None
     check_spots(grid, spots)
     check_orifice(grid, orifice)
     if spots.rho_max is not None:
-        raise CaseError('spots.rho_max: interacting spots have no steady solver; use '
+        raise ValueError('spots.rho_max: interacting spots have no steady solver; use '
                         'spots.mode = "transient" (spotpde.traffic)')
     Q0 = _constant_rate(orifice)
     g, (v, b, b_par), crop = _pad(grid, spots)
@@ -207,7 +206,7 @@ def transient(grid: Grid, orifice: Orifice, spots: Spots, t_end: float, times=No
     check_spots(grid, spots)
     check_orifice(grid, orifice)
     if not (np.isfinite(t_end) and t_end > 0):
-        raise CaseError(f"spots.t_end: must be > 0 for a transient run, got {t_end!r}")
+        raise ValueError(f"spots.t_end: must be > 0 for a transient run, got {t_end!r}")
     if spots.rho_max is not None:          # interacting spots: the nonlinear solver
         from . import traffic
         res = traffic.transient(grid, orifice, spots, t_end, times, rho0=rho0, dt=dt,
@@ -215,7 +214,7 @@ def transient(grid: Grid, orifice: Orifice, spots: Spots, t_end: float, times=No
         return {**res, "inflow": res["injected"]} if full_output else res
     frame_times = np.array([t_end], float) if times is None else np.sort(np.asarray(times, float))
     if frame_times.size and (frame_times[0] < 0 or frame_times[-1] > t_end * (1 + 1e-12)):
-        raise CaseError(f"spots.t_end: frame times must lie in [0, {t_end}]")
+        raise ValueError(f"spots.t_end: frame times must lie in [0, {t_end}]")
     g, (v, b, b_par), crop = _pad(grid, spots)
     base = _elliptic.floor_source(g.shape, g.spacing, source_profile(g, orifice))
     if rho0 is not None and g.shape != grid.shape:
@@ -238,7 +237,7 @@ def transient(grid: Grid, orifice: Orifice, spots: Spots, t_end: float, times=No
                "inflow": np.array([orifice.rate_at(t) for t in frame_times]),
                "dt": None, "steps": None}
     else:
-        raise CaseError(f"spots.method: must be one of {', '.join(map(repr, TRANSIENT_METHODS))}, "
+        raise ValueError(f"spots.method: must be one of {', '.join(map(repr, TRANSIENT_METHODS))}, "
                         f"got {method!r}")
     frames = crop(res["frames"])
     if full_output:

@@ -27,7 +27,6 @@ import scipy.sparse.linalg as spla
 
 from . import _advection, _diffusion
 from . import _fp_kernels as K
-from ..errors import CaseError
 from ..grid import DIFFUSIVITY_KEYS, DRIFT_KEYS, Grid
 
 
@@ -43,16 +42,16 @@ def required_fields(dims: int) -> tuple[str, ...]:
 def _check_fields(grid: Grid, fields: Mapping[str, np.ndarray], where: str) -> dict:
     """The coefficient arrays of :func:`required_fields` as contiguous float64 grid arrays.
 
-    Scalars are broadcast. Raises ``CaseError`` listing every problem, each named
+    Scalars are broadcast. Raises ``ValueError`` listing every problem, each named
     ``{where}.{key}``: a wrong shape, NaN or infinite values, a negative diagonal ``D_ii``
     or a tensor that is not positive semidefinite (``D_ij**2 > D_ii D_jj``).
     """
     if not isinstance(fields, Mapping):
-        raise CaseError(f"{where}: expected a dict of arrays, got {type(fields).__name__}")
+        raise ValueError(f"{where}: expected a dict of arrays, got {type(fields).__name__}")
     names = required_fields(grid.dims)
     missing = [n for n in names if n not in fields]
     if missing:
-        raise CaseError(f"{where}: missing {', '.join(missing)} (needs {', '.join(names)})")
+        raise ValueError(f"{where}: missing {', '.join(missing)} (needs {', '.join(names)})")
     out = {}
     problems = []
     for n in names:
@@ -80,7 +79,7 @@ def _check_fields(grid: Grid, fields: Mapping[str, np.ndarray], where: str) -> d
                     problems.append(f"{where}.{c}: tensor not positive semidefinite "
                                     f"({c}**2 > {a}*{b}) in {int(bad.sum())} cells")
     if problems:
-        raise CaseError(problems)
+        raise ValueError("\n".join(problems))
     return out
 
 

@@ -144,7 +144,7 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
 
     Raises:
         ValueError: invalid ``P0``, ``t_end``, ``frames`` or options (naming the
-            argument); invalid fields (a ``CaseError``, which the pipeline reports as a
+            argument); invalid fields (a ``ValueError`` naming ``fields.<key>``, which the pipeline reports as a
             numerical failure of derived data).
         NumericalError: NaN, ``P < 0`` or a broken mass budget (message names the time).
     """
