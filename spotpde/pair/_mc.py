@@ -29,6 +29,19 @@ from ..montecarlo import _mc_kernels as K
 
 
 @njit(cache=True)
+def _walk(xs, zs, nd, nu, sig, step):
+    """Fill a spot path through the crossing point ``(xs[nd], zs[nd])``: ``nd`` steps of
+    ``step`` down (walked backwards from the crossing) and ``nu`` up, each with a Gaussian
+    horizontal step of standard deviation ``sig``."""
+    for k in range(nd - 1, -1, -1):
+        xs[k] = xs[k + 1] - sig * np.random.standard_normal()
+        zs[k] = zs[k + 1] - step
+    for k in range(nd + 1, nd + nu + 1):
+        xs[k] = xs[k - 1] + sig * np.random.standard_normal()
+        zs[k] = zs[k - 1] + step
+
+
+@njit(cache=True)
 def _replicas(n, seed, x0, z0, contact, separation, shape, size, size_v, amp, reach_h,
               reach_v, V1, b, lam, step, max_fall, conormal, angles, cxx, cxz, czz):
     np.random.seed(seed)
@@ -53,12 +66,7 @@ def _replicas(n, seed, x0, z0, contact, separation, shape, size, size_v, amp, re
             zs = np.empty(nd + nu + 1)
             xs[nd] = xc
             zs[nd] = zm + phase
-            for k in range(nd - 1, -1, -1):
-                xs[k] = xs[k + 1] - sig * np.random.standard_normal()
-                zs[k] = zs[k + 1] - step
-            for k in range(nd + 1, nd + nu + 1):
-                xs[k] = xs[k - 1] + sig * np.random.standard_normal()
-                zs[k] = zs[k - 1] + step
+            _walk(xs, zs, nd, nu, sig, step)
             escaped = False
             lo, hi = xs[0], xs[0]
             for k in range(nd + nu + 1):
@@ -179,12 +187,7 @@ def _probe(nspots, X, Z, shape, size, size_v, amp, reach_h, reach_v, V1, b, lam,
     for _ in range(nspots):
         xs[nd] = 0.5 * X + (np.random.random() - 0.5) * W
         zs[nd] = zm + np.random.random() * step
-        for k in range(nd - 1, -1, -1):
-            xs[k] = xs[k + 1] - sig * np.random.standard_normal()
-            zs[k] = zs[k + 1] - step
-        for k in range(nd + 1, nd + nu + 1):
-            xs[k] = xs[k - 1] + sig * np.random.standard_normal()
-            zs[k] = zs[k - 1] + step
+        _walk(xs, zs, nd, nu, sig, step)
         x1, z1, x2, z2 = 0.0, 0.0, X, Z
         for k in range(nd + nu):
             dx = xs[k + 1] - xs[k]
