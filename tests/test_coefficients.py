@@ -14,13 +14,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from numpy.polynomial.legendre import leggauss
 from scipy import integrate
 
 from spotpde.fields import coefficients as C
 from spotpde.fields import kernels
 from spotpde.grid import Grid
 from spotpde.parameters import Spots
+from _quadrature import discrete_rule_drift
 
 
 def _interior(grid, kernel=None, margin=0.0):
@@ -181,37 +181,6 @@ def test_point_orifice_fields_match_height_quadrature(rule):
 
 # -- 4. reflecting walls: the wall layer against the exact discrete-step average ----------
 
-def _discrete_rule_drift(x_p, lam, W, D, rho, L, eps=1e-3):
-    """Exact mean horizontal particle velocity near reflecting walls at +-L.
-
-    Uniform spots of density rho in [-L, L] step by xi ~ N(0, 2 D dt) (reflected at the
-    walls); each moves the particle by -W(x_p - x_s - lam dX) dX with W the kernel
-    integrated over z. Computed by quadrature over x_s and xi for 2 D dt = eps^2.
-    """
-    dt = eps**2 / (2 * D)
-    xi = np.linspace(-9.0, 9.0, 2001)
-    cq = np.exp(-xi**2 / 2)
-    cq[[0, -1]] *= 0.5
-    cq /= cq.sum()
-    xi = xi * eps
-
-    def reflect(y):
-        y = np.where(y > L, 2 * L - y, y)
-        return np.where(y < -L, -2 * L - y, y)
-
-    edges = np.unique(np.concatenate([
-        [-L], -L + eps * np.array([2, 5, 10, 20]), np.linspace(-L + 0.05, L - 0.05, 201),
-        L - eps * np.array([20, 10, 5, 2]), [L]]))
-    t, wt = leggauss(16)
-    total = 0.0
-    for a, c in zip(edges[:-1], edges[1:]):
-        xs = 0.5 * (a + c) + 0.5 * (c - a) * t
-        Xs, Q = np.meshgrid(xs, xi, indexing="ij")
-        dX = reflect(Xs + Q) - Xs
-        total += 0.5 * (c - a) * np.dot(wt, (W(x_p - Xs - lam * dX) * dX) @ cq)
-    return -rho * total / dt
-
-
 @pytest.mark.parametrize("rule", [0.0, 0.5, 1.0])
 def test_wall_layer_matches_discrete_rule_at_reflecting_walls(rule):
     sigma, V1, b, rho0, L = 1.0, 0.05, 1.3, 2.0, 6.0
@@ -228,7 +197,7 @@ def test_wall_layer_matches_discrete_rule_at_reflecting_walls(rule):
 
     scale = b * rho0 * W(0.0)
     for i in (grid.nx - 1, grid.nx - 4, 2):
-        exact = _discrete_rule_drift(grid.x[i], rule, W, b, rho0, L)
+        exact = discrete_rule_drift(grid.x[i], rule, W, b, rho0, L)
         assert abs(f["u_x"][k, i] - exact) < 2e-3 * scale, (i, f["u_x"][k, i], exact)
     if rule == 1.0:  # the printed rule pushes particles away from the walls
         assert f["u_x"][k, -1] < -0.5 * scale and f["u_x"][k, 0] > 0.5 * scale

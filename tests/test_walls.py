@@ -27,6 +27,7 @@ from spotpde.fields import _walls, coefficients as C, kernels
 from spotpde.density import spot_density
 from spotpde.grid import Grid
 from spotpde.parameters import Orifice, Spots
+from _quadrature import discrete_rule_drift
 
 DISK = dict(radius=2.5, height=0.0024)  # the paper's spot: R = 2.5 d, w = 0.0024
 
@@ -307,43 +308,6 @@ def test_monte_carlo_wall_profile_matches_the_renormalised_continuum():
 
 # -- 6. the lam-rule terms and the wall layer against the exact discrete-step average --------
 
-def _discrete_rule_drift(x_p, lam, W, phi, D, rho, L, eps=1e-3):
-    """Exact mean horizontal particle velocity near reflecting walls at +-L, renormalised.
-
-    Uniform spots of density rho in [-L, L] step by xi ~ N(0, 2 D dt) (reflected at the
-    walls); each moves the particle by ``-W(x_p - x_c) dX / phi(x_c)``, ``x_c = x_s +
-    lam dX``, with W the kernel integrated over z. Quadrature over x_s (Gauss-Legendre
-    panels, refined at the walls) and the step (uniform nodes: the reflection has a kink)
-    for 2 D dt = eps^2; the result's own error is O(eps) (5e-4 relative in
-    test_coefficients' version without phi).
-    """
-    from numpy.polynomial.legendre import leggauss
-
-    dt = eps**2 / (2 * D)
-    xi = np.linspace(-9.0, 9.0, 2001)
-    cq = np.exp(-xi**2 / 2)
-    cq[[0, -1]] *= 0.5
-    cq /= cq.sum()
-    xi = xi * eps
-
-    def reflect(y):
-        y = np.where(y > L, 2 * L - y, y)
-        return np.where(y < -L, -2 * L - y, y)
-
-    edges = np.unique(np.concatenate([
-        [-L], -L + eps * np.array([2, 5, 10, 20]), np.linspace(-L + 0.05, L - 0.05, 201),
-        L - eps * np.array([20, 10, 5, 2]), [L]]))
-    t, wt = leggauss(16)
-    total = 0.0
-    for a, c in zip(edges[:-1], edges[1:]):
-        xs = 0.5 * (a + c) + 0.5 * (c - a) * t
-        Xs, Q = np.meshgrid(xs, xi, indexing="ij")
-        dX = reflect(Xs + Q) - Xs
-        xc = Xs + lam * dX
-        total += 0.5 * (c - a) * np.dot(wt, (W(x_p - xc) / phi(xc) * dX) @ cq)
-    return -rho * total / dt
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("rule", [0.0, 0.5, 1.0])
 def test_renormalised_wall_layer_matches_the_discrete_rule(rule):
@@ -358,7 +322,7 @@ def test_renormalised_wall_layer_matches_the_discrete_rule(rule):
     phi = lambda s: stats.norm.cdf((L - s) / sigma) - stats.norm.cdf((-L - s) / sigma)
     scale = b * rho0 * W(0.0)
     for i in (grid.nx - 1, grid.nx - 4, 2):
-        exact = _discrete_rule_drift(grid.x[i], rule, W, phi, b, rho0, L)
+        exact = discrete_rule_drift(grid.x[i], rule, W, b, rho0, L, phi=phi)
         # the truncated check's tolerance (2e-3 of scale) relative to the push, which is
         # twice as large here; it includes the reference's own O(eps) error (8e-4 of scale)
         assert abs(f["u_x"][k, i] - exact) < 4e-3 * scale, (i, f["u_x"][k, i], exact)
