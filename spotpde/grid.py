@@ -5,6 +5,17 @@ Array order follows the result Dataset: ``(z, x)`` in 2D and ``(z, y, x)`` in 3D
 ``[z0 + k h, z0 + (k + 1) h)``; the orifice lies on the bottom face ``z = z0``.
 In 3D the ``y`` extent equals the ``x`` extent (docs/interface.md).
 
+Axisymmetric grids (``coordinates="axisymmetric"``, ``dims = 2``) are the ``(r, z)``
+half-plane of a cylindrical silo: ``x_range = (0, a)`` is the radius, the axis is
+``r = 0`` and array order is ``(z, r)``. A cell is a ring of volume ``2 pi r_i h**2``
+(:attr:`Grid.cell_volumes`); fields are the axisymmetric 3D fields sampled on the
+half-plane, and vector / tensor components are cylindrical (``u_r``, ``u_z``,
+``D_rr``, ``D_rz``, ``D_zz``; :attr:`Grid.drift_keys`, :attr:`Grid.diffusivity_keys`).
+
+A hopper (:class:`Hopper`) restricts the material to a wedge (2D) or cone
+(axisymmetric) whose straight walls leave the orifice's edges at ``angle`` degrees from
+the vertical; :attr:`Grid.material` is the fraction of each cell inside it.
+
 py-pde orders axes the other way (``x`` first); :meth:`Grid.to_pde` builds the matching
 ``pde.CartesianGrid`` and :meth:`Grid.to_pde_data` / :meth:`Grid.from_pde_data`
 transpose between the two orders.
@@ -18,6 +29,9 @@ from functools import cached_property
 import numpy as np
 
 WALLS = ("reflecting", "open")
+#: Coordinate systems: ``"cartesian"`` (2D ``(x, z)`` or 3D ``(x, y, z)``) or
+#: ``"axisymmetric"`` (``(r, z)``, a cylindrical silo, dims = 2).
+COORDINATES = ("cartesian", "axisymmetric")
 
 #: Particle drift components by dimension, in the result-variable names of docs/interface.md.
 DRIFT_KEYS = {2: ("u_x", "u_z"), 3: ("u_x", "u_y", "u_z")}
@@ -26,6 +40,66 @@ DIFFUSIVITY_KEYS = {
     2: ("D_xx", "D_xz", "D_zz"),
     3: ("D_xx", "D_yy", "D_zz", "D_xy", "D_xz", "D_yz"),
 }
+#: The same for axisymmetric grids (cylindrical components; the azimuthal diffusivity
+#: ``D_theta_theta`` equals ``D_rr`` for the spot model's horizontally isotropic spots).
+AXISYMMETRIC_DRIFT_KEYS = ("u_r", "u_z")
+AXISYMMETRIC_DIFFUSIVITY_KEYS = ("D_rr", "D_rz", "D_zz")
+
+
+@dataclass(frozen=True)
+class Hopper:
+    """Straight hopper walls from the orifice's edges, widening upward.
+
+    The material is ``|x - centre| <= half_width + (z - z0) tan(angle)`` (2D wedge), or
+    ``r <= half_width + (z - z0) tan(angle)`` (axisymmetric cone, ``centre = 0``),
+    intersected with the grid's box: above the height where the hopper walls meet the
+    silo walls, the silo walls bound the material.
+
+    Args:
+        angle: wall angle from the vertical in degrees, ``0 <= angle < 90``.
+        centre: the orifice centre ``x`` in d (0 on the axis).
+        half_width: the orifice's half-width (radius when axisymmetric) in d, ``>= 0``.
+    """
+
+    angle: float
+    centre: float = 0.0
+    half_width: float = 0.0
+
+    def __post_init__(self):
+        a = float(self.angle)
+        if not (np.isfinite(a) and 0.0 <= a < 90.0):
+            raise ValueError(f"angle: must lie in [0, 90) degrees, got {self.angle!r}")
+        if not (np.isfinite(self.half_width) and self.half_width >= 0.0):
+            raise ValueError(f"half_width: must be finite and >= 0, got {self.half_width!r}")
+        if not np.isfinite(self.centre):
+            raise ValueError(f"centre: must be finite, got {self.centre!r}")
+        if a == 0.0 and self.half_width == 0.0:
+            raise ValueError("half_width: a vertical hopper (angle 0) needs an orifice "
+                             "of width > 0, otherwise its walls close the domain")
+        object.__setattr__(self, "angle", a)
+        object.__setattr__(self, "centre", float(self.centre))
+        object.__setattr__(self, "half_width", float(self.half_width))
+
+    @property
+    def slope(self) -> float:
+        """``tan(angle)``: horizontal widening per unit height."""
+        return float(np.tan(np.radians(self.angle)))
+
+    def half_width_at(self, height):
+        """Half-width of the material (radius for a cone) at ``height`` above the floor, in d."""
+        return self.half_width + np.asarray(height, dtype=float) * self.slope
+
+
+def _clipped_ramp_integral(alpha, beta, t0, t1):
+    """``integral_{t0}^{t1} clip(alpha + beta t, 0, 1) dt`` exactly (arrays broadcast)."""
+    def F(u):   # antiderivative of clip(u, 0, 1)
+        return np.where(u <= 0.0, 0.0, np.where(u >= 1.0, u - 0.5, 0.5 * u * u))
+    a0 = alpha + beta * t0
+    a1 = alpha + beta * t1
+    with np.errstate(divide="ignore", invalid="ignore"):
+        slanted = (F(a1) - F(a0)) / beta
+    flat = np.clip(a0, 0.0, 1.0) * (t1 - t0)
+    return np.where(np.abs(beta) > 1e-14, slanted, flat)
 
 
 def derivative(f: np.ndarray, spacing: float, axis: int) -> np.ndarray:
@@ -57,7 +131,11 @@ class Grid:
         x: horizontal extent ``(x0, x1)`` in d (3D: also the ``y`` extent).
         z: vertical extent ``(z0, z1)`` in d; the orifice is at ``z0``.
         spacing: cell size ``h`` in d; must divide both extents.
-        walls: ``"reflecting"`` (no flux through the side walls) or ``"open"``.
+        walls: ``"reflecting"`` (no flux through the side walls) or ``"open"``; on an
+            axisymmetric grid the wall at ``r = a`` (the axis is never a wall).
+        coordinates: ``"cartesian"`` or ``"axisymmetric"`` (``dims = 2``, ``x = (0, a)``
+            the radius).
+        hopper: optional :class:`Hopper`: the material is the wedge / cone it bounds.
     """
 
     dims: int
@@ -65,12 +143,30 @@ class Grid:
     z_range: tuple[float, float]
     spacing: float
     walls: str = "reflecting"
+    coordinates: str = "cartesian"
+    hopper: Hopper | None = None
 
     def __post_init__(self):
         if self.dims not in (2, 3):
             raise ValueError(f"dims must be 2 or 3, got {self.dims!r}")
         if self.walls not in WALLS:
             raise ValueError(f"walls must be one of {WALLS}, got {self.walls!r}")
+        if self.coordinates not in COORDINATES:
+            raise ValueError(f"coordinates must be one of {COORDINATES}, got {self.coordinates!r}")
+        if self.coordinates == "axisymmetric":
+            if self.dims != 2:
+                raise ValueError(f"dims: axisymmetric coordinates have dims = 2 (r, z), got {self.dims!r}")
+            if float(self.x_range[0]) != 0.0:
+                raise ValueError(f"x range: axisymmetric coordinates need x = (0, a) (the axis "
+                                 f"at r = 0), got {tuple(self.x_range)!r}")
+        if self.hopper is not None:
+            if not isinstance(self.hopper, Hopper):
+                raise TypeError(f"hopper must be a Hopper or None, got {type(self.hopper).__name__}")
+            if self.dims != 2:
+                raise ValueError("hopper: hoppers exist on 2D and axisymmetric grids only")
+            if self.coordinates == "axisymmetric" and self.hopper.centre != 0.0:
+                raise ValueError(f"hopper: an axisymmetric hopper is centred on the axis, "
+                                 f"got centre {self.hopper.centre!r}")
         h = float(self.spacing)
         if not (h > 0 and np.isfinite(h)):
             raise ValueError(f"spacing must be a finite number > 0, got {self.spacing!r}")
@@ -103,9 +199,26 @@ class Grid:
         return (self.nz, self.nx) if self.dims == 2 else (self.nz, self.nx, self.nx)
 
     @property
+    def axisymmetric(self) -> bool:
+        """True for ``coordinates = "axisymmetric"`` (array order ``(z, r)``)."""
+        return self.coordinates == "axisymmetric"
+
+    @property
     def axes(self) -> tuple[str, ...]:
-        """Dimension names in array order."""
+        """Dimension names in array order: ``("z", "x")``, ``("z", "y", "x")`` or ``("z", "r")``."""
+        if self.axisymmetric:
+            return ("z", "r")
         return ("z", "x") if self.dims == 2 else ("z", "y", "x")
+
+    @property
+    def drift_keys(self) -> tuple[str, ...]:
+        """Names of the particle drift components in result order."""
+        return AXISYMMETRIC_DRIFT_KEYS if self.axisymmetric else DRIFT_KEYS[self.dims]
+
+    @property
+    def diffusivity_keys(self) -> tuple[str, ...]:
+        """Names of the independent diffusivity components in result order."""
+        return AXISYMMETRIC_DIFFUSIVITY_KEYS if self.axisymmetric else DIFFUSIVITY_KEYS[self.dims]
 
     @property
     def size(self) -> int:
@@ -114,8 +227,59 @@ class Grid:
 
     @property
     def cell_volume(self) -> float:
-        """``h**dims`` in d**dims."""
+        """``h**dims`` in d**dims (Cartesian; an axisymmetric cell's volume is
+        :attr:`cell_volumes`)."""
         return self.spacing**self.dims
+
+    @cached_property
+    def cell_volumes(self) -> np.ndarray:
+        """Volume of every cell, broadcastable to :attr:`shape`, in d**3 (axisymmetric:
+        the ring ``2 pi r_i h**2``, exact) or d**dims (Cartesian: ``h**dims``). Cut by
+        a hopper, a cell's material volume is ``cell_volumes * material``."""
+        if self.axisymmetric:
+            return (2.0 * np.pi * self.spacing**2 * self.x)[None, :]
+        return np.full((1,) * self.dims, self.cell_volume)
+
+    @cached_property
+    def horizontal_measures(self) -> np.ndarray:
+        """Horizontal cross-section of every cell column, broadcastable to a horizontal
+        slice (axisymmetric: the annulus ``2 pi r_i h`` in d**2; else ``h**(dims-1)``)."""
+        if self.axisymmetric:
+            return 2.0 * np.pi * self.spacing * self.x
+        return np.full((1,) * (self.dims - 1), self.horizontal_cell_measure)
+
+    @cached_property
+    def material(self) -> np.ndarray:
+        """Fraction of each cell's volume inside the granular material, grid-shaped.
+
+        All ones without a hopper. With one: exact area fractions of the wedge in 2D;
+        in axisymmetric coordinates the ring-volume fraction of the cone (``r dr``
+        weights), by the midpoint rule with 64 sub-heights per cell (exact except in
+        the few cells where the cone meets the outer wall or the axis). Read-only.
+        """
+        out = np.ones(self.shape)
+        hop = self.hopper
+        if hop is not None:
+            h = self.spacing
+            zf = self.z_range[0] + np.arange(self.nz + 1) * h
+            xl = self.x_range[0] + np.arange(self.nx) * h   # left faces
+            if not self.axisymmetric:
+                s = hop.slope
+                t0, t1 = (zf[:-1] - self.z_range[0])[:, None], (zf[1:] - self.z_range[0])[:, None]
+                # fraction left of the right wall x = c + hw + s t, right of the left wall
+                right = _clipped_ramp_integral((hop.centre + hop.half_width - xl) / h, s / h, t0, t1)
+                left = _clipped_ramp_integral((xl + h - (hop.centre - hop.half_width)) / h, s / h, t0, t1)
+                out = np.clip((right + left) / h - 1.0, 0.0, 1.0)
+            else:
+                m = 64
+                sub = (np.arange(m) + 0.5) / m
+                zs = (zf[:-1, None] - self.z_range[0]) + sub[None, :] * h   # (nz, m)
+                R = hop.half_width_at(zs)[..., None]                         # (nz, m, 1)
+                r0, r1 = xl, xl + h
+                inside = (np.clip(R, r0, r1) ** 2 - r0**2) / (r1**2 - r0**2)
+                out = inside.mean(axis=1)
+        out.setflags(write=False)
+        return out
 
     @property
     def horizontal_cell_measure(self) -> float:
@@ -143,8 +307,15 @@ class Grid:
         """Middle of the y extent in d (3D; the default y of the orifice and tracer)."""
         return 0.5 * (self.x_range[0] + self.x_range[1])
 
+    @property
+    def r(self) -> np.ndarray:
+        """Cell-centre radii in d (axisymmetric grids; the same array as :attr:`x`)."""
+        return self.x
+
     def coords(self) -> dict[str, np.ndarray]:
-        """1D coordinate arrays by axis name."""
+        """1D coordinate arrays by axis name (``z`` and ``r`` when axisymmetric)."""
+        if self.axisymmetric:
+            return {"z": self.z, "r": self.x}
         out = {"z": self.z, "x": self.x}
         if self.dims == 3:
             out["y"] = self.y
@@ -160,8 +331,12 @@ class Grid:
 
     # -- py-pde interoperability ---------------------------------------------------
     def to_pde(self):
-        """The matching ``pde.CartesianGrid`` (axes ordered x, [y,] z as py-pde expects)."""
+        """The matching ``pde.CartesianGrid`` (axes ordered x, [y,] z as py-pde expects;
+        axisymmetric grids: ``pde.CylindricalSymGrid``, axes r, z)."""
         import pde
+
+        if self.axisymmetric:
+            return pde.CylindricalSymGrid(self.x_range[1], self.z_range, (self.nx, self.nz))
 
         bounds = [self.x_range] + ([self.x_range] if self.dims == 3 else []) + [self.z_range]
         shape = [self.nx] + ([self.nx] if self.dims == 3 else []) + [self.nz]

@@ -15,7 +15,12 @@ validator of :mod:`._schema`, each naming the key to change:
 * the tracer: ``t_end = inf`` only for steady spots, ``snapshots`` only for transient
   ones, a start blob inside the domain and at least h wide, layer bands of at least 2 h
   and less than twice the height;
-* ``[pair]``: a 2D domain, the point inside it.
+* ``[pair]``: a 2D domain, the point inside it;
+* axisymmetric coordinates: ``dims = 2``, ``domain.x = [0, a]`` (the radius), the
+  orifice on the axis (``orifice.x = 0``), no interacting spots or ``[pair]`` table;
+* a hopper (``domain.hopper_angle``): a 2D or axisymmetric domain, a uniform orifice
+  (its edges are where the walls start), and walls that leave the floor open (a
+  vertical hopper needs an orifice of width > 0).
 
 Lengths in particle diameters d, times in the case's time unit.
 """
@@ -24,7 +29,7 @@ from __future__ import annotations
 
 import math
 
-from ._schema import _ellipsoid_measure, _show, _Validator
+from ._schema import _ellipsoid_measure, _show, _Validator, kernel_dims
 
 
 def check_consistency(v: _Validator, data: dict) -> None:
@@ -53,7 +58,9 @@ def check_consistency(v: _Validator, data: dict) -> None:
                   f"{_show(b - a)} into whole cells", h)
     # orifice on the floor
     half = 0.5 * o["width"] if o["profile"] == "uniform" else 0.0
-    if not (x0 <= o["x"] - half and o["x"] + half <= x1):
+    # axisymmetric: the orifice is the disk r <= width/2 around the axis r = x0 = 0
+    below = 0.0 if d.get("coordinates") == "axisymmetric" else half
+    if not (x0 <= o["x"] - below and o["x"] + half <= x1):
         what = "the slot [x - width/2, x + width/2]" if half else "the centre"
         v.bad("orifice.x", f"{what} must lie on the floor "
               f"domain.x = [{_show(x0)}, {_show(x1)}] (orifice.width = "
@@ -92,7 +99,7 @@ def check_consistency(v: _Validator, data: dict) -> None:
               'set it to 0 or remove it', s["t_end"])
     # kernel
     if k["shape"] == "uniform" and "volume" in k:
-        w = k["volume"] / _ellipsoid_measure(k["size"], k["aspect"], dims)
+        w = k["volume"] / _ellipsoid_measure(k["size"], k["aspect"], kernel_dims(d))
         if w > 1.001:   # w = 1 (the void model's spot), volume rounded to 4 digits, is fine
             v.bad("kernel.volume", f'with shape = "uniform" and kernel.size = '
                   f'{_show(k["size"])} implies the influence w = volume / spot '
@@ -138,6 +145,8 @@ def check_consistency(v: _Validator, data: dict) -> None:
             v.bad("tracer.layers.spacing", f"must be < 2 * the domain height "
                   f"{_show(z1 - z0)} to leave a band and a gap in the silo", sp)
 
+    _check_geometry(v, data)
+
     p = data.get("pair")
     if p is not None:
         if dims != 2:
@@ -148,3 +157,38 @@ def check_consistency(v: _Validator, data: dict) -> None:
         if p.get("z") is not None and not z0 < p["z"] < z1:
             v.bad("pair.z", f"must lie inside domain.z = ({_show(z0)}, {_show(z1)})",
                   p["z"])
+
+
+def _check_geometry(v: _Validator, data: dict) -> None:
+    """``domain.coordinates`` and ``domain.hopper_angle`` against the other keys."""
+    d, o, s = data["domain"], data["orifice"], data["spots"]
+    axisymmetric = d.get("coordinates") == "axisymmetric"
+    if axisymmetric:
+        if d["dims"] != 2:
+            v.bad("domain.dims", 'must be 2 with domain.coordinates = "axisymmetric" '
+                  "(the (r, z) half-plane of a cylinder)", d["dims"])
+        if d["x"][0] != 0.0:
+            v.bad("domain.x", 'must be [0, a] with domain.coordinates = "axisymmetric" '
+                  "(x is the radius; the axis is r = 0)", d["x"])
+        if o["x"] != 0.0:
+            v.bad("orifice.x", 'must be 0 with domain.coordinates = "axisymmetric" '
+                  "(the orifice is centred on the axis; orifice.width is its diameter)",
+                  o["x"])
+        if "rho_max" in s:
+            v.bad("spots.rho_max", "interacting spots are solved in Cartesian "
+                  'coordinates only; use domain.coordinates = "cartesian"', s["rho_max"])
+        if data.get("pair") is not None:
+            v.bad("pair", 'needs domain.coordinates = "cartesian" (the pair solver is '
+                  "planar)", "axisymmetric")
+    if "hopper_angle" not in d:
+        return
+    angle = d["hopper_angle"]
+    if d["dims"] != 2:
+        v.bad("domain.hopper_angle", "needs domain.dims = 2 (a wedge in (x, z), or a "
+              'cone with domain.coordinates = "axisymmetric")', angle)
+    if o["profile"] != "uniform":
+        v.bad("domain.hopper_angle", 'needs orifice.profile = "uniform" (the hopper '
+              "walls start at the orifice's edges)", angle)
+    if angle == 0.0 and o["width"] == 0.0:
+        v.bad("domain.hopper_angle", "0 with a point orifice (orifice.width = 0) closes "
+              "the domain: give orifice.width > 0 or an angle > 0", angle)

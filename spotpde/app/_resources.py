@@ -17,7 +17,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from ._schema import _ellipsoid_measure
+from ._schema import _ellipsoid_measure, kernel_dims
 
 #: Fraction of the available memory a run may plan to use.
 MEMORY_FRACTION = 0.6
@@ -86,7 +86,7 @@ def kernel_halfwidths(data: Mapping) -> tuple[int, int]:
     from ..fields import kernels
 
     d, k = data["domain"], data["kernel"]
-    volume = (k["height"] * _ellipsoid_measure(k["size"], k["aspect"], d["dims"])
+    volume = (k["height"] * _ellipsoid_measure(k["size"], k["aspect"], kernel_dims(d))
               if "height" in k else k["volume"])
     kern = kernels.from_spec(k["shape"], k["size"], volume, k["aspect"], d["dims"])
     m = kern.halfwidths(d["spacing"])

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from ..grid import WALLS
+from ..grid import COORDINATES, WALLS
 from ..parameters import PROFILES, SPOT_MODES, TRACER_MODELS
 
 KERNEL_SHAPES = ("uniform", "gaussian", "exponential")
@@ -39,7 +39,7 @@ DIFFUSIVITIES = ("passage", "mean-field")
 #: without a default. The ``tracer`` table itself is optional.
 DEFAULTS: dict[str, dict[str, Any]] = {
     "domain": {"dims": 2, "x": [-30.0, 30.0], "z": [0.0, 100.0], "spacing": 0.25,
-               "walls": "reflecting"},
+               "walls": "reflecting", "coordinates": "cartesian", "hopper_angle": None},
     "orifice": {"x": 0.0, "y": None, "width": 0.0, "profile": "uniform", "rate": 1.0,
                 "noise": None},
     "spots": {"drift": 1.0, "b": 1.3, "b_par": 0.0, "mode": "steady", "t_end": 0.0,
@@ -71,6 +71,12 @@ MAX_FRAMES = 10_000
 
 
 # -- value helpers ------------------------------------------------------------------
+
+def kernel_dims(domain: dict) -> int:
+    """Dimension of the spots' kernel: ``domain.dims``, or 3 for an axisymmetric silo
+    (its spots are 3D; the grid is the (r, z) half-plane)."""
+    return 3 if domain.get("coordinates") == "axisymmetric" else domain["dims"]
+
 
 def _plain(value: Any) -> Any:
     """A case mapping from Python code with plain TOML types: numpy scalars become
@@ -171,7 +177,7 @@ class _Validator:
                 choices = ", ".join(valid)
                 self.problems.append(f"{name}: unknown {what}{extra}; valid {what}s: {choices}")
 
-    def number(self, key, value, *, gt=None, ge=None, le=None, integer=False,
+    def number(self, key, value, *, gt=None, ge=None, le=None, lt=None, integer=False,
                limit=MAX_LENGTH):
         """A finite number in range; returns float/int or None after recording a problem."""
         kind = "an integer" if integer else "a number"
@@ -197,6 +203,8 @@ class _Validator:
             conds.append(f">= {_show(ge)}")
         if le is not None and not value <= le:
             conds.append(f"<= {_show(le)}")
+        if lt is not None and not value < lt:
+            conds.append(f"< {_show(lt)}")
         if conds:
             self.bad(key, "must be " + " and ".join(conds), value)
             return None
@@ -256,6 +264,10 @@ class _Validator:
             "z": self.pair("domain.z", t["z"]),
             "spacing": self.number("domain.spacing", t["spacing"], gt=0),
             "walls": self.choice("domain.walls", t["walls"], WALLS),
+            "coordinates": self.choice("domain.coordinates", t["coordinates"], COORDINATES),
+            **({} if t["hopper_angle"] is None else
+               {"hopper_angle": self.number("domain.hopper_angle", t["hopper_angle"], ge=0,
+                                            lt=90)}),
         }
 
     def dims(self, value):

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CaseError
-from ..grid import Grid
+from ..grid import Grid, Hopper
 from ..parameters import Orifice, Spots, Tracer, TracerStart
 from ._consistency import check_consistency
 from ._resources import (BASELINE_BYTES, MEMORY_FRACTION, auto_snapshots, available_memory,
@@ -38,6 +38,7 @@ from ._schema import (DEFAULTS, DIFFUSION_MODES, DIFFUSION_SCALINGS, DIFFUSIVITI
                       FLUX_SHAPES, KERNEL_SHAPES, KERNEL_WALLS, LAYERS_KEYS, LIMITERS,
                       MAX_FRAMES, MAX_LENGTH, NOISE_KEYS, PAIR_START_KEYS, PROFILE_KEYS,
                       RATE_TABLE_KEYS, START_KEYS, _ellipsoid_measure, _plain, _show,
+                      kernel_dims,
                       _Validator)
 
 __all__ = [
@@ -72,8 +73,13 @@ class Case:
         self.source = source
         self.text = text if text is not None else self.to_toml()
         d, o, s, k = data["domain"], data["orifice"], data["spots"], data["kernel"]
+        hopper = None
+        if d.get("hopper_angle") is not None:
+            half = 0.5 * o["width"] if o["profile"] == "uniform" else 0.0
+            hopper = Hopper(angle=d["hopper_angle"], centre=o["x"], half_width=half)
         self.grid = Grid(dims=d["dims"], x_range=tuple(d["x"]), z_range=tuple(d["z"]),
-                         spacing=d["spacing"], walls=d["walls"])
+                         spacing=d["spacing"], walls=d["walls"],
+                         coordinates=d.get("coordinates", "cartesian"), hopper=hopper)
         rate = o["rate"]
         if isinstance(rate, dict):
             from ..density.orifice import rate_from_table
@@ -94,10 +100,12 @@ class Case:
         t = data.get("tracer")
         self.tracer_options = ({} if t is None else
                                {k: t[k] for k in ("limiter", "cfl", "diffusion")})
-        volume = (k["height"] * _ellipsoid_measure(k["size"], k["aspect"], d["dims"])
+        volume = (k["height"] * _ellipsoid_measure(k["size"], k["aspect"], kernel_dims(d))
                   if "height" in k else k["volume"])
         self.kernel_spec = {"shape": k["shape"], "size": k["size"], "volume": volume,
-                            "aspect": k["aspect"], "dims": d["dims"]}
+                            "aspect": k["aspect"],
+                            # an axisymmetric silo is 3D: its spots have a 3D kernel
+                            "dims": 3 if self.grid.axisymmetric else d["dims"]}
         self._kernel = None
 
     # -- derived --------------------------------------------------------------------
