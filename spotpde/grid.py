@@ -14,7 +14,8 @@ half-plane, and vector / tensor components are cylindrical (``u_r``, ``u_z``,
 
 A hopper (:class:`Hopper`) restricts the material to a wedge (2D) or cone
 (axisymmetric) whose straight walls leave the orifice's edges at ``angle`` degrees from
-the vertical; :attr:`Grid.material` is the fraction of each cell inside it.
+the vertical; :attr:`Grid.material` is the fraction of each cell inside it and
+:attr:`Grid.active` the staircase every solver uses (cells whose centre is inside).
 
 py-pde orders axes the other way (``x`` first); :meth:`Grid.to_pde` builds the matching
 ``pde.CartesianGrid`` and :meth:`Grid.to_pde_data` / :meth:`Grid.from_pde_data`
@@ -247,6 +248,21 @@ class Grid:
         if self.axisymmetric:
             return 2.0 * np.pi * self.spacing * self.x
         return np.full((1,) * (self.dims - 1), self.horizontal_cell_measure)
+
+    @cached_property
+    def active(self) -> np.ndarray:
+        """Cells of the computation, grid-shaped bool: those whose centre lies in the
+        material (all True without a hopper). Every stage solves on this staircase:
+        faces between an active and an inactive cell are walls (no flux of spots or
+        tracer), and results are NaN on inactive cells. Read-only."""
+        out = np.ones(self.shape, dtype=bool)
+        hop = self.hopper
+        if hop is not None:
+            Z, X = self.mesh()
+            out = np.broadcast_to(np.abs(X - hop.centre) <= hop.half_width_at(Z - self.z_range[0]),
+                                  self.shape).copy()
+        out.setflags(write=False)
+        return out
 
     @cached_property
     def material(self) -> np.ndarray:

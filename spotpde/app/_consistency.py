@@ -192,3 +192,7 @@ def _check_geometry(v: _Validator, data: dict) -> None:
     if angle == 0.0 and o["width"] == 0.0:
         v.bad("domain.hopper_angle", "0 with a point orifice (orifice.width = 0) closes "
               "the domain: give orifice.width > 0 or an angle > 0", angle)
+    elif o["width"] < 2 * d["spacing"]:
+        v.bad("orifice.width", "must be at least 2 * domain.spacing = "
+              f"{_show(2 * d['spacing'])} with a hopper, so that the hopper's floor has "
+              "open cells (the solvers resolve its walls cell by cell)", o["width"])
