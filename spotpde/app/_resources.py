@@ -88,7 +88,7 @@ def kernel_halfwidths(data: Mapping) -> tuple[int, int]:
     d, k = data["domain"], data["kernel"]
     volume = (k["height"] * _ellipsoid_measure(k["size"], k["aspect"], kernel_dims(d))
               if "height" in k else k["volume"])
-    kern = kernels.from_spec(k["shape"], k["size"], volume, k["aspect"], d["dims"])
+    kern = kernels.from_spec(k["shape"], k["size"], volume, k["aspect"], kernel_dims(d))
     m = kern.halfwidths(d["spacing"])
     return m[0], m[-1]
 
@@ -119,6 +119,10 @@ def _estimate(data: Mapping, frames_in_memory: bool = True, *, pad: bool = True,
             sz = 2 * math.ceil(reach_h / k["aspect"] / h) + 1
     stencil = sz * sx ** (dims - 1)
     padded = (nz + sz) * (nx + sx) ** (dims - 1)
+    if d.get("coordinates") == "axisymmetric":
+        # ring-integrated kernel weights: for every output radius a band of source radii
+        # times the vertical stencil, for w and w**2, scalar and radial (cos) parts
+        stencil = 4 * nx * sx * sz
     n_fields = 1 + 1 + (5 if dims == 2 else 9)     # rho_s, v_kin, u_*, D_**
     scratch = 12                                    # spot-density and coefficient work arrays
     tracer = data.get("tracer")

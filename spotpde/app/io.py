@@ -1,8 +1,8 @@
 """Result Datasets and netCDF files.
 
 :func:`make_dataset` turns grid arrays into an :class:`xarray.Dataset` with the
-public variable names (docs/interface.md), dims ``("z", "x")`` / ``("z", "y", "x")`` (tracer frames add
-a leading ``"t"``) and CF-style ``units`` / ``long_name`` on every variable and
+public variable names (docs/interface.md), dims ``("z", "x")`` / ``("z", "y", "x")``, or ``("z", "r")``
+for an axisymmetric silo (tracer frames add a leading ``"t"``) and CF-style ``units`` / ``long_name`` on every variable and
 coordinate. :func:`write_netcdf` writes netCDF4 with zlib compression atomically (a
 temporary file in the same directory, then :func:`os.replace`), so an interrupted or
 failed write never leaves a half-written result. :class:`FrameWriter` does the same for a
@@ -44,18 +44,21 @@ CONVENTIONS = "CF-1.10"
 REFERENCES = ("M. Z. Bazant, The Spot Model for random-packing dynamics, Mechanics of "
               "Materials 38, 717-731 (2006), arXiv:cond-mat/0411040 (2004)")
 
-#: Variables every result has (with a tracer also P, P_height, mass, outflow).
+#: Variables every result has (with a tracer also P, P_height, mass, outflow); an
+#: axisymmetric result has ``u_r``, ``D_rr``, ``D_rz`` for the ``x`` names.
 REQUIRED = ("rho_s", "v_kin", "u_x", "u_z", "D_xx", "D_xz", "D_zz")
+REQUIRED_AXISYMMETRIC = ("rho_s", "v_kin", "u_r", "u_z", "D_rr", "D_rz", "D_zz")
 
 COORDS = {
     "x": ("d", "horizontal position (cell centre), in particle diameters"),
     "y": ("d", "second horizontal position (cell centre), in particle diameters"),
     "z": ("d", "height above the orifice (cell centre), in particle diameters"),
+    "r": ("d", "distance from the silo axis (cell centre), in particle diameters"),
     "t": ("t", "time since the tracer was released, in the case's time unit"),
 }
 #: CF axis attributes of the coordinates.
 AXES = {"x": {"axis": "X"}, "y": {"axis": "Y"}, "z": {"axis": "Z", "positive": "up"},
-        "t": {"axis": "T"}}
+        "r": {}, "t": {"axis": "T"}}
 #: How ``spotpde_units`` symbols are spelled in long names.
 _SPOKEN = {"d": "particle diameters", "d-1": "per particle diameter",
            "d-2": "per d**2", "d-3": "per d**3", "d2": "d**2", "d3": "d**3",
@@ -114,7 +117,8 @@ def variable_attrs(name: str, dims: int) -> dict[str, str]:
     Args:
         name: a result variable name (``rho_s``, ``v_kin``, ``u_x``, ``D_xz``, ``P`` ...;
             docs/interface.md).
-        dims: 2 or 3.
+        dims: 2 or 3: the dimension of the silo (3 for an axisymmetric one, whose
+            densities are per unit volume).
 
     Returns:
         ``{"units": "1", "long_name": ..., "spotpde_units": ...}``.
@@ -122,7 +126,7 @@ def variable_attrs(name: str, dims: int) -> dict[str, str]:
     Raises:
         KeyError: for a name that is not a result variable.
     """
-    axis = {"x": "x", "y": "y", "z": "z"}
+    axis = {"x": "x", "y": "y", "z": "z", "r": "r"}
     if name == "rho_s":
         return cf_units(f"d-{dims}", "mean spot density (spots per unit volume)")
     if name == "v_kin":
@@ -147,8 +151,13 @@ def variable_attrs(name: str, dims: int) -> dict[str, str]:
         return cf_units("1", "tracer probability that has left through the orifice "
                         "(and through open side walls, where the walls are open)")
     raise KeyError(f"{name!r} is not a spotpde result variable; valid: rho_s, v_kin, "
-                   "u_x, u_y, u_z, D_xx, D_yy, D_zz, D_xy, D_xz, D_yz, P, P_height, residence, "
-                   "mass, outflow")
+                   "u_x, u_y, u_z, D_xx, D_yy, D_zz, D_xy, D_xz, D_yz, u_r, D_rr, D_rz, "
+                   "P, P_height, residence, mass, outflow")
+
+
+def silo_dims(grid) -> int:
+    """The silo's dimension: ``grid.dims``, or 3 for an axisymmetric grid (a cylinder)."""
+    return 3 if getattr(grid, "axisymmetric", False) else grid.dims
 
 
 def make_dataset(
@@ -197,7 +206,7 @@ def make_dataset(
                                     if times is not None else [])
             raise ValueError(f"{name}: array of shape {arr.shape} fits none of the result "
                              f"shapes {valid}")
-        attrs_v = variable_attrs(name, grid.dims)
+        attrs_v = variable_attrs(name, silo_dims(grid))
         if attrs_v.get("units", "1") != "1":     # a scale in symbols: make it CF
             attrs_v = {**attrs_v, **cf_units(attrs_v["units"], attrs_v["long_name"])}
         data_vars[name] = (dims, arr, attrs_v)
@@ -267,7 +276,7 @@ class FrameWriter:
                 nc.createDimension(axis, n)   # coordinates come with the Dataset in finish()
             P = nc.createVariable("P", "f8", axes, zlib=True, complevel=complevel,
                                   shuffle=True, chunksizes=(1, *grid.shape))
-            P.setncatts(variable_attrs("P", grid.dims))
+            P.setncatts(variable_attrs("P", silo_dims(grid)))
         except BaseException:
             self.abort()
             raise
@@ -350,7 +359,7 @@ def read_netcdf(path: str | os.PathLike) -> xr.Dataset:
             ds = ds.load()
     except Exception as exc:  # netCDF4/HDF5 raise assorted errors for bad files
         raise ValueError(f"{path}: not a readable netCDF file ({exc})") from None
-    missing = [n for n in REQUIRED if n not in ds.data_vars]
+    missing = [n for n in required_variables(ds) if n not in ds.data_vars]
     if missing:
         raise ValueError(f"{path}: not a spotpde result (missing {', '.join(missing)}; "
                          f"found {', '.join(map(str, ds.data_vars)) or 'no variables'})")
@@ -361,8 +370,9 @@ def check_single_run(ds: xr.Dataset, path: str | os.PathLike = "result") -> None
     """Check that a Dataset is the result of one run, as :func:`plot_result
     <spotpde.plotting.plot_result>` and the analysis functions expect.
 
-    Every :data:`REQUIRED` variable must have dims ``("z", "x")`` or ``("z", "y", "x")``
-    (``P`` a leading ``"t"``) with at least 2 points along each.
+    Every :data:`REQUIRED` variable must have dims ``("z", "x")``, ``("z", "y", "x")``
+    or, axisymmetric, ``("z", "r")`` (``P`` a leading ``"t"``) with at least 2 points
+    along each.
 
     Args:
         ds: a Dataset read by :func:`read_netcdf`.
@@ -372,16 +382,16 @@ def check_single_run(ds: xr.Dataset, path: str | os.PathLike = "result") -> None
         ValueError: naming the file and what is different (e.g. a sweep result, whose
             variables have the swept keys as leading dimensions).
     """
-    allowed = (("z", "x"), ("z", "y", "x"))
+    allowed = (("z", "x"), ("z", "y", "x"), ("z", "r"))
     dims = tuple(ds["rho_s"].dims)
     if dims not in allowed:
-        extra = [d for d in dims if d not in ("z", "y", "x")]
+        extra = [d for d in dims if d not in ("z", "y", "x", "r")]
         hint = (f"; it looks like a sweep result over {', '.join(map(str, extra))}: select "
                 "one member first, e.g. ds.isel(" + ", ".join(f"{d}=0" for d in extra)
                 + ")") if extra and "sweep_keys" in ds.attrs else ""
         raise ValueError(f"{os.fspath(path)}: not a single-run result (rho_s has dims "
-                         f"{dims}, expected ('z', 'x') or ('z', 'y', 'x')){hint}")
-    for name in REQUIRED:
+                         f"{dims}, expected ('z', 'x'), ('z', 'y', 'x') or ('z', 'r')){hint}")
+    for name in required_variables(ds):
         if tuple(ds[name].dims) != dims:
             raise ValueError(f"{os.fspath(path)}: not a single-run result ({name} has dims "
                              f"{tuple(ds[name].dims)}, expected {dims})")
@@ -392,6 +402,11 @@ def check_single_run(ds: xr.Dataset, path: str | os.PathLike = "result") -> None
     if small:
         raise ValueError(f"{os.fspath(path)}: not a single-run result (dimension "
                          f"{small[0]} needs a coordinate and at least 2 points)")
+
+
+def required_variables(ds: xr.Dataset) -> tuple[str, ...]:
+    """:data:`REQUIRED`, or :data:`REQUIRED_AXISYMMETRIC` for a result with an ``r`` axis."""
+    return REQUIRED_AXISYMMETRIC if "r" in ds.dims else REQUIRED
 
 
 def _write_error(path: Path, exc: BaseException) -> WriteError:

@@ -149,6 +149,8 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
         v_kin = np.asarray(kinematic.speed(grid, orifice, b), dtype=float) * V1 * q0
     stage(1.0)
 
+    if grid.hopper is not None:      # nothing moves outside the hopper's walls
+        v_kin = np.where(grid.active, v_kin, 0.0)
     out = {"rho_s": rho_s, "v_kin": v_kin, **fields}
     times = None
     steady_attrs = {}
@@ -170,14 +172,17 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
                             steady_residual=float(res.residual))
     elif case.tracer is not None:
         res = tracer.solve(grid, coefficients, P0, case.tracer.t_end, case.tracer.frames,
-                           progress=_stage(progress, "tracer"), on_frame=on_frame,
-                           **case.tracer_options)
+                           progress=_stage(progress, "tracer"),
+                           on_frame=_outside_as_nan(grid, on_frame), **case.tracer_options)
         times = np.asarray(res.times, dtype=float)
         out.update(P_height=res.P_height, mass=res.mass, outflow=res.outflow)
         if res.P is not None:      # None: the frames went to on_frame
             out["P"] = res.P
     for name, arr in out.items():
         _check_finite(name, np.asarray(arr, dtype=float))
+    if grid.hopper is not None:     # cells outside the material are NaN in results
+        out = {name: _mask_outside(grid, np.asarray(arr, dtype=float))
+               for name, arr in out.items()}
 
     attrs = {
         "title": "spotpde result: spot model of granular drainage (Bazant 2004)",
@@ -188,9 +193,12 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
         "diffusivity": case.diffusivity,
         "model": case.model,
         "dims": int(grid.dims),
+        "coordinates": grid.coordinates,
         "spotpde_version": __version__,
         "case": case.to_toml(),
     }
+    if grid.hopper is not None:
+        attrs["hopper_angle"] = float(grid.hopper.angle)
     attrs.update(steady_attrs)
     if case.source is not None:
         attrs["case_file"] = str(case.source)
@@ -273,8 +281,12 @@ def initial_density(grid, start: TracerStart) -> np.ndarray:
             uniform on the bands ``[k*spacing, k*spacing + spacing/2)`` in ``z`` (cell
             centres), zero between.
 
+        On an axisymmetric grid the blob is centred at radius ``x`` (on the axis for
+        ``x = 0``; elsewhere a ring); with a hopper ``P0`` is 0 outside the material.
+
     Returns:
-        ``P0`` in d**-dims, array order ``(z, x)`` / ``(z, y, x)``.
+        ``P0`` in d**-dims (d**-3 axisymmetric), array order ``(z, x)`` / ``(z, y, x)``
+        / ``(z, r)``, normalised with the cell volumes (rings when axisymmetric).
 
     Raises:
         ValueError: the start puts no probability on the grid.
@@ -292,10 +304,30 @@ def initial_density(grid, start: TracerStart) -> np.ndarray:
         P = np.broadcast_to(np.exp(-0.5 * r2 / start.width**2), grid.shape).copy()
     else:
         raise ValueError(f"tracer start kind must be 'blob' or 'layers', got {start.kind!r}")
-    total = P.sum() * grid.cell_volume
+    if grid.hopper is not None:     # no tracer outside the material
+        P = np.where(grid.active, P, 0.0)
+    if grid.axisymmetric:           # rings: sum(P * 2 pi r h**2) = 1
+        total = float((P * grid.cell_volumes).sum())
+    else:
+        total = P.sum() * grid.cell_volume
     if not total > 0:
         raise ValueError("tracer start puts no probability on the grid")
     return P / total
+
+
+def _mask_outside(grid, arr: np.ndarray) -> np.ndarray:
+    """``arr`` with NaN on the cells outside the material (``~grid.active``); arrays
+    without the grid's trailing shape (``mass``, ``outflow``) are returned unchanged."""
+    if arr.shape[-grid.dims:] != grid.shape:
+        return arr
+    return np.where(grid.active, arr, np.nan)
+
+
+def _outside_as_nan(grid, on_frame):
+    """``on_frame`` writing each frame with NaN outside the material (hoppers)."""
+    if on_frame is None or grid.hopper is None:
+        return on_frame
+    return lambda index, time, P: on_frame(index, time, _mask_outside(grid, np.asarray(P)))
 
 
 def _stage(progress: Progress | None, name: str):

@@ -4,7 +4,9 @@
 next to the kinematic model on the same colour scale; speed profiles at a few heights;
 streamlines of the particle drift; the tracer (the layered silo for a layered start,
 snapshots of the blob otherwise) and its mass budget. Each panel has its own function
-taking a Dataset and an Axes, for notebooks. 3D results are shown in the ``y`` mid-plane.
+taking a Dataset and an Axes, for notebooks. 3D results are shown in the ``y`` mid-plane;
+axisymmetric results (dims ``(z, r)``) as the whole vertical section through the axis,
+mirrored (:func:`mirror_section`). Cells outside a hopper's walls are NaN and left blank.
 Axes are in particle diameters d, times in the case's time unit t.
 """
 
@@ -23,7 +25,8 @@ LAYER_CMAP = "YlOrBr"
 
 
 def midplane(ds: xr.Dataset) -> xr.Dataset:
-    """The ``y`` mid-plane of a 3D result (a 2D result unchanged).
+    """The ``y`` mid-plane of a 3D result, the mirrored section of an axisymmetric one
+    (:func:`mirror_section`), a 2D result unchanged.
 
     Args:
         ds: result Dataset.
@@ -31,9 +34,42 @@ def midplane(ds: xr.Dataset) -> xr.Dataset:
     Returns:
         Dataset with dims ``(z, x)`` (and ``t``).
     """
+    if "r" in ds.dims:
+        return mirror_section(ds)
     if "y" in ds.dims:
         return ds.isel(y=ds.sizes["y"] // 2)
     return ds
+
+
+#: Components that change sign under the mirror x = -r (odd in x); the rest are even.
+_ODD_IN_X = ("u_r", "D_rz")
+_MIRROR_NAMES = {"u_r": "u_x", "D_rr": "D_xx", "D_rz": "D_xz"}
+
+
+def mirror_section(ds: xr.Dataset) -> xr.Dataset:
+    """The vertical section ``(z, x)`` through the axis of an axisymmetric result.
+
+    ``x = -r`` on the left half, ``x = r`` on the right; scalars and ``D_rr`` are even,
+    ``u_r`` and ``D_rz`` odd (``u_x(-r) = -u_r(r)``). Cylindrical components get the
+    Cartesian names of the section (``u_x``, ``D_xx``, ``D_xz``), so every panel of
+    :func:`plot_result` applies. A result without an ``r`` axis is returned unchanged.
+    """
+    if "r" not in ds.dims:
+        return ds
+    left = ds.isel(r=slice(None, None, -1))
+    left = left.assign_coords(r=-left.r.values)
+    for name in _ODD_IN_X:
+        if name in left:
+            left[name] = -left[name]
+    parts = []
+    for part in (left, ds):
+        part = part.rename({"r": "x"})
+        parts.append(part.rename({k: v for k, v in _MIRROR_NAMES.items() if k in part}))
+    out = xr.concat(parts, dim="x", data_vars="minimal", coords="minimal",
+                    compat="override", combine_attrs="override")
+    out.x.attrs.update(long_name="horizontal position in the section through the axis, "
+                                 "in particle diameters", units="1", axis="X")
+    return out
 
 
 def _extent(ds):
@@ -63,8 +99,13 @@ def _image(ax, ds, values, *, vmin, vmax, cmap, label, title, extend="max"):
     return im
 
 
+def _is_3d(ds) -> bool:
+    """A 3D silo: Cartesian 3D or axisymmetric (densities per unit volume)."""
+    return "y" in ds.dims or "r" in ds.dims or ds.attrs.get("dims") == 3
+
+
 def _density_unit(ds):
-    return "spots/d³" if "y" in ds.dims or ds.attrs.get("dims") == 3 else "spots/d²"
+    return "spots/d³" if _is_3d(ds) else "spots/d²"
 
 
 def plot_spot_density(ds: xr.Dataset, ax) -> None:
@@ -109,7 +150,7 @@ def plot_streamlines(ds: xr.Dataset, ax) -> None:
     """Streamlines of the particle drift, coloured by its magnitude."""
     m = midplane(ds)
     x, z = np.asarray(m.x), np.asarray(m.z)
-    ux, uz = np.asarray(m.u_x), np.asarray(m.u_z)
+    ux, uz = np.nan_to_num(np.asarray(m.u_x)), np.nan_to_num(np.asarray(m.u_z))
     speed = np.hypot(ux, uz)
     vmax = _robust_max(speed)
     if x.size > 1 and z.size > 1 and np.any(speed > 0):
@@ -223,12 +264,13 @@ def plot_result(ds: xr.Dataset, path: str | os.PathLike, *, dpi: int = 100) -> P
         plot_speed_difference(ds, axes[1, 2])
         plot_flux(ds, axes[1, 3])
     model = ds.attrs.get("model", "spot")
-    n = "³" if "y" in ds.dims else "²"
+    n = "³" if _is_3d(ds) else "²"
+    where = (" (y mid-plane)" if "y" in ds.dims else
+             " (axisymmetric: section through the axis)" if "r" in ds.dims else "")
     fig.suptitle(f"spotpde {ds.attrs.get('spotpde_version', '')}: {model} model, "
                  f"V1 = {ds.attrs.get('V1', float('nan')):.3g} d{n}, "
                  f"V2 = {ds.attrs.get('V2', float('nan')):.3g} d{n}, "
-                 f"rule λ = {ds.attrs.get('rule', float('nan')):g}"
-                 + (" (y mid-plane)" if "y" in ds.dims else ""), fontsize=12)
+                 f"rule λ = {ds.attrs.get('rule', float('nan')):g}" + where, fontsize=12)
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp.png")
     try:
@@ -243,7 +285,7 @@ def plot_result(ds: xr.Dataset, path: str | os.PathLike, *, dpi: int = 100) -> P
 def plot_height_propagator(ds: xr.Dataset, ax) -> None:
     """Geometrical propagator ``P_height``: where the tracer crosses each height."""
     m = midplane(ds)
-    unit = "1/d²" if "y" in ds.dims else "1/d"
+    unit = "1/d²" if _is_3d(ds) else "1/d"
     _image(ax, m, m.P_height, vmin=0.0, vmax=_robust_max(m.P_height), cmap="inferno",
            label=f"P_height ({unit})", title="geometrical propagator P_height")
 
@@ -261,12 +303,15 @@ def plot_speed_difference(ds: xr.Dataset, ax) -> None:
 
 def plot_flux(ds: xr.Dataset, ax) -> None:
     """Downward particle flux through each height: drift vs kinematic model (``V1 Q0``)."""
-    h = float(ds.x[1] - ds.x[0]) if ds.sizes["x"] > 1 else 1.0
-    area = h ** (2 if "y" in ds.dims else 1)
-    horizontal = [d for d in ("y", "x") if d in ds.dims]
-    ax.plot((-ds.u_z).sum(horizontal) * area, ds.z, label="−u_z (drift)")
-    ax.plot(ds.v_kin.sum(horizontal) * area, ds.z, "--", label="v_kin")
-    unit = "d³/t" if "y" in ds.dims else "d²/t"
+    horizontal = [d for d in ("y", "x", "r") if d in ds.dims]
+    h = float(ds[horizontal[-1]][1] - ds[horizontal[-1]][0]) if ds.sizes[horizontal[-1]] > 1 else 1.0
+    if "r" in ds.dims:     # rings of area 2 pi r h
+        area = 2.0 * np.pi * ds.r * h
+    else:
+        area = h ** (2 if "y" in ds.dims else 1)
+    ax.plot(((-ds.u_z) * area).sum(horizontal), ds.z, label="−u_z (drift)")
+    ax.plot((ds.v_kin * area).sum(horizontal), ds.z, "--", label="v_kin")
+    unit = "d³/t" if _is_3d(ds) else "d²/t"
     ax.set_xlabel(f"downward particle flux through height z ({unit})")
     ax.set_ylabel("z (d)")
     ax.set_xlim(left=0)
