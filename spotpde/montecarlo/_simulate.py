@@ -427,6 +427,10 @@ def from_case(case, *, particles="lattice", spacing: float = 1.0, **kwargs) -> M
             radius, so that a void displaces a given particle at most once).
     """
     grid = case.grid
+    if grid.axisymmetric or grid.hopper is not None:
+        raise ValueError("case: the discrete spot model runs in rectangular boxes; this "
+                         "case is " + ("axisymmetric" if grid.axisymmetric else "a hopper")
+                         + " (domain.coordinates / domain.hopper_angle)")
     if isinstance(particles, str):
         if particles == "lattice":
             particles = lattice(grid, spacing)
