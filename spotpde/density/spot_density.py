@@ -39,7 +39,8 @@ from typing import Callable
 
 import numpy as np
 
-from . import _elliptic, _marching, _spectral, _transient
+from . import _elliptic, _geometry, _marching, _metric_march, _spectral, _transient
+from ..errors import NumericalError
 from ..grid import Grid
 from .orifice import check_orifice, source_profile
 from ..parameters import SPOT_MODES, Orifice, Spots
@@ -152,6 +153,8 @@ def steady(grid: Grid, orifice: Orifice, spots: Spots, progress: Progress = None
         raise ValueError('spots.rho_max: interacting spots have no steady solver; use '
                         'spots.mode = "transient" (spotpde.traffic)')
     Q0 = _constant_rate(orifice)
+    if _geometry.uses_geometry(grid):
+        return _steady_geometry(grid, orifice, spots, Q0, progress)
     g, (v, b, b_par), crop = _pad(grid, spots)
     if _is_uniform(b) and _is_uniform(b_par) and (_is_zero(b_par) or _is_uniform(v)):
         phi = _spectral.steady_flux(g, orifice, float(np.ravel(b)[0]), Q0, float(np.ravel(b_par)[0]))
@@ -215,6 +218,9 @@ def transient(grid: Grid, orifice: Orifice, spots: Spots, t_end: float, times=No
     frame_times = np.array([t_end], float) if times is None else np.sort(np.asarray(times, float))
     if frame_times.size and (frame_times[0] < 0 or frame_times[-1] > t_end * (1 + 1e-12)):
         raise ValueError(f"spots.t_end: frame times must lie in [0, {t_end}]")
+    if _geometry.uses_geometry(grid):
+        return _transient_geometry(grid, orifice, spots, t_end, frame_times, times is None,
+                                   progress, dt, rho0, full_output, method)
     g, (v, b, b_par), crop = _pad(grid, spots)
     base = _elliptic.floor_source(g.shape, g.spacing, source_profile(g, orifice))
     if rho0 is not None and g.shape != grid.shape:
@@ -243,6 +249,54 @@ def transient(grid: Grid, orifice: Orifice, spots: Spots, t_end: float, times=No
     if full_output:
         return {**res, "frames": frames, "times": frame_times}
     return frames[-1] if times is None else frames
+
+
+# -- axisymmetric grids and hoppers (docs/spot_density.md section 9) ------------------------
+def _pad_geometry(grid: Grid, spots: Spots):
+    p = pad_cells(grid, spots.b)
+    g, coeffs, crop = _geometry.pad(grid, p, [spots.drift, spots.b, spots.b_par])
+    return g, coeffs, crop, p
+
+
+def _steady_geometry(grid, orifice, spots, Q0, progress):
+    """Steady ``rho_s`` on a metric / staircase grid: marching (``D_par = 0``) or FV + LU."""
+    g, (v, b, b_par), crop, _ = _pad_geometry(grid, spots)
+    flux_floor = Q0 * source_profile(g, orifice)
+    m, w, _, active = _geometry.metric(g)
+    if _is_zero(b_par):
+        bb = np.broadcast_to(np.asarray(b, dtype=float), g.shape)
+        rho = _metric_march.march(flux_floor, bb, g.spacing, m, w, active, progress) / v
+    else:
+        A, _ = _geometry.assemble(g, v, b * v, b_par * v)
+        q = _elliptic.floor_source(g.shape, g.spacing, flux_floor)
+        rho = _elliptic.factorize(A, 2)(-q).reshape(g.shape)
+        if not np.all(np.isfinite(rho)):
+            raise NumericalError("spot density: the steady solve produced non-finite values")
+    if progress is not None:
+        progress(1.0)
+    return crop(np.where(active, rho, 0.0))
+
+
+def _transient_geometry(grid, orifice, spots, t_end, frame_times, last_only, progress, dt,
+                        rho0, full_output, method):
+    """BDF2 on the metric / staircase finite volumes (``_geometry.assemble``)."""
+    if method != "bdf2":
+        raise ValueError(f"method: {method!r} is not available on axisymmetric or hopper grids "
+                         f"(only 'bdf2')")
+    g, (v, b, b_par), crop, p = _pad_geometry(grid, spots)
+    base = _elliptic.floor_source(g.shape, g.spacing, source_profile(g, orifice))
+    if rho0 is not None and g.shape != grid.shape:
+        lo = 0 if grid.axisymmetric else p
+        rho0 = np.pad(np.asarray(rho0, float), [(0, 0), (lo, p)], mode="constant")
+    operator = _geometry.assemble(g, v, b * v, b_par * v)
+    volumes = np.broadcast_to(g.cell_volumes, g.shape).ravel()
+    res = _transient.integrate(g.shape, g.spacing, v, b * v, b_par * v,
+                               lambda t: orifice.rate_at(t) * base, t_end, frame_times, dt=dt,
+                               rho0=rho0, progress=progress, operator=operator, volumes=volumes)
+    frames = crop(res["frames"])
+    if full_output:
+        return {**res, "frames": frames, "times": frame_times}
+    return frames[-1] if last_only else frames
 
 
 def solve(grid: Grid, orifice: Orifice, spots: Spots, progress: Progress = None) -> np.ndarray:
