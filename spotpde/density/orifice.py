@@ -266,10 +266,10 @@ def _ring_profile(grid: Grid, orifice: Orifice) -> np.ndarray:
     ext = max(n, int(np.ceil(reach / h)) + 1)
     edges = h * np.arange(ext + 1)
     if orifice.profile == "uniform":
-        cdf = np.minimum(edges, R) ** 2 / R**2
-    else:
-        cdf = -np.expm1(-edges**2 / (2.0 * R * R))
-    ring = np.diff(cdf)
+        ring = np.diff(np.minimum(edges, R) ** 2 / R**2)
+    else:                      # exp(-r-^2/2s^2) - exp(-r+^2/2s^2), accurate in the tail
+        e0, e1 = edges[:-1] ** 2 / (2.0 * R * R), edges[1:] ** 2 / (2.0 * R * R)
+        ring = -np.exp(-e0) * np.expm1(e0 - e1)
     mass = ring[:n].copy()
     if grid.walls == "reflecting" and ext > n:
         j = np.arange(n, ext)
