@@ -265,7 +265,8 @@ def _steady_geometry(grid, orifice, spots, Q0, progress):
     m, w, _, active = _geometry.metric(g)
     if _is_zero(b_par):
         bb = np.broadcast_to(np.asarray(b, dtype=float), g.shape)
-        rho = _metric_march.march(flux_floor, bb, g.spacing, m, w, active, progress) / v
+        scheme = "cn" if g.hopper is None else "bdf2"   # BDF2: L-stable where cells join
+        rho = _metric_march.march(flux_floor, bb, g.spacing, m, w, active, progress, scheme) / v
     else:
         A, _ = _geometry.assemble(g, v, b * v, b_par * v)
         q = _elliptic.floor_source(g.shape, g.spacing, flux_floor)
