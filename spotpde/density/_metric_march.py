@@ -58,39 +58,68 @@ EULER_ROWS = 2
 
 
 @njit(cache=True)
-def _thomas(lo, di, up, rhs, out):
-    """Solve the tridiagonal system ``lo_i x_{i-1} + di_i x_i + up_i x_{i+1} = rhs_i``."""
+def _solve_row(b, w, m, s, rhs, out, cp, dp):
+    """Thomas solve of ``(I - s L B) out = rhs`` on one row (``s = dz / h**2``).
+
+    ``(L B x)_i = [w_{i+1} (b_{i+1} x_{i+1} - b_i x_i) - w_i (b_i x_i - b_{i-1} x_{i-1})] / m_i``,
+    ``w`` the ``n + 1`` face weights (``w_0 = w_n = 0``).
+    """
     n = rhs.size
-    cp = np.empty(n)
-    dp = np.empty(n)
-    cp[0] = up[0] / di[0]
-    dp[0] = rhs[0] / di[0]
+    di = 1.0 + s * (w[0] + w[1]) * b[0] / m[0]
+    up = -s * w[1] * b[1] / m[0] if n > 1 else 0.0
+    cp[0] = up / di
+    dp[0] = rhs[0] / di
     for i in range(1, n):
-        den = di[i] - lo[i] * cp[i - 1]
-        cp[i] = up[i] / den
-        dp[i] = (rhs[i] - lo[i] * dp[i - 1]) / den
+        lo = -s * w[i] * b[i - 1] / m[i]
+        di = 1.0 + s * (w[i] + w[i + 1]) * b[i] / m[i]
+        up = -s * w[i + 1] * b[i + 1] / m[i] if i < n - 1 else 0.0
+        den = di - lo * cp[i - 1]
+        cp[i] = up / den
+        dp[i] = (rhs[i] - lo * dp[i - 1]) / den
     out[n - 1] = dp[n - 1]
     for i in range(n - 2, -1, -1):
         out[i] = dp[i] - cp[i] * out[i + 1]
 
 
-def _solve(b, w, m, s, rhs):
-    """``(I - s L B)^{-1} rhs`` on one row, ``s = dz / h**2``, ``w`` the ``n + 1`` face weights."""
-    lo = -s * w[:-1] / m * np.roll(b, 1)
-    up = -s * w[1:] / m * np.roll(b, -1)
-    di = 1.0 + s * (w[:-1] + w[1:]) / m * b
-    out = np.empty_like(rhs)
-    _thomas(lo, di, up, np.ascontiguousarray(rhs), out)
-    return out
-
-
-def _apply(b, w, m, s, x):
-    """``(I + s L B) x`` on one row."""
-    psi = b * x
-    d = np.diff(psi)                       # psi_{i+1} - psi_i at the n - 1 interior faces
-    flux = np.zeros(psi.size + 1)
-    flux[1:-1] = w[1:-1] * d
-    return x + s * (flux[1:] - flux[:-1]) / m
+@njit(cache=True)
+def _march_rows(b, w, m, act, h, bdf2, euler_rows, k0, k1, phi, prev, out):
+    """Rows ``k0 + 1 .. k1`` of the march; ``phi`` (row ``k0``) and ``prev`` (row
+    ``k0 - 1``, BDF2) are updated in place."""
+    n = phi.size
+    c_half = 0.5 / h
+    rhs = np.empty(n)
+    tmp = np.empty(n)
+    bm = np.empty(n)
+    cp = np.empty(n)
+    dp = np.empty(n)
+    for k in range(k0, k1):
+        if k == 0 or (not bdf2 and k < euler_rows):
+            # Rannacher: two backward-Euler half steps (the first with the mean b)
+            for i in range(n):
+                bm[i] = 0.5 * (b[k, i] + b[k + 1, i])
+                rhs[i] = phi[i] * (act[k + 1, i] if k > 0 else 1.0)
+            _solve_row(bm, w[k + 1] if k > 0 else w[0], m, c_half, rhs, tmp, cp, dp)
+            for i in range(n):
+                rhs[i] = tmp[i] * act[k + 1, i]
+            _solve_row(b[k + 1], w[k + 1], m, c_half, rhs, tmp, cp, dp)
+        elif bdf2:
+            for i in range(n):
+                rhs[i] = (4.0 * phi[i] - prev[i]) / 3.0 * act[k + 1, i]
+            _solve_row(b[k + 1], w[k + 1], m, 2.0 / (3.0 * h), rhs, tmp, cp, dp)
+        else:       # Crank-Nicolson: rhs = (I + c L_k B_k) phi
+            for i in range(n):
+                psi = b[k, i] * phi[i]
+                lap = 0.0
+                if i < n - 1:
+                    lap += w[k, i + 1] * (b[k, i + 1] * phi[i + 1] - psi)
+                if i > 0:
+                    lap -= w[k, i] * (psi - b[k, i - 1] * phi[i - 1])
+                rhs[i] = (phi[i] + c_half * lap / m[i]) * act[k + 1, i]
+            _solve_row(b[k + 1], w[k + 1], m, c_half, rhs, tmp, cp, dp)
+        for i in range(n):
+            prev[i] = phi[i]
+            phi[i] = tmp[i]
+            out[k + 1, i] = tmp[i]
 
 
 def march(phi_floor: np.ndarray, b: np.ndarray, h: float, m: np.ndarray, w: np.ndarray,
@@ -105,38 +134,30 @@ def march(phi_floor: np.ndarray, b: np.ndarray, h: float, m: np.ndarray, w: np.n
         m: cell measures ``(nx,)``; w: face weights ``(nz, nx + 1)``; active: mask
             ``(nz, nx)`` (:func:`spotpde.density._geometry.metric`).
         progress: called with the fraction done.
+        scheme: ``"cn"`` (Crank-Nicolson) or ``"bdf2"`` (hoppers), see the module doc.
 
     Returns:
         ``phi`` ``(nz, nx)``, 0 on inactive cells.
     """
     b = np.ascontiguousarray(b, dtype=float)
-    nz = b.shape[0]
-    act = np.asarray(active, float)
+    w = np.ascontiguousarray(w, dtype=float)
+    m = np.ascontiguousarray(m, dtype=float)
+    nz, n = b.shape
+    act = np.ascontiguousarray(active, dtype=float)
     out = np.zeros(b.shape)
-    c_half = 0.5 / h
-    c_start = 0.25 / h
-    phi = np.asarray(phi_floor, dtype=float) * act[0]
-    for _ in range(2):
-        phi = _solve(b[0], w[0], m, c_start, phi)
+    cp, dp, tmp = np.empty(n), np.empty(n), np.empty(n)
+    phi = np.ascontiguousarray(phi_floor, dtype=float) * act[0]
+    for _ in range(2):          # floor -> first cell centre: two backward-Euler steps of h/4
+        _solve_row(b[0], w[0], m, 0.25 / h, phi, tmp, cp, dp)
+        phi = tmp.copy()
     out[0] = phi
-    every = max(1, nz // 100)
-    for k in range(nz - 1):
-        if k == 0:      # Rannacher: the first step as two backward-Euler half steps
-            prev = phi
-            phi = _solve(0.5 * (b[0] + b[1]), w[0], m, c_half, phi)
-            phi = _solve(b[1], w[1], m, c_half, phi * act[1])
-        elif scheme == "bdf2":
-            prev, phi = phi, _solve(b[k + 1], w[k + 1], m, 2.0 / (3.0 * h),
-                                    (4.0 * phi - prev) / 3.0 * act[k + 1])
-        elif k < EULER_ROWS:
-            phi = _solve(0.5 * (b[k] + b[k + 1]), w[k + 1], m, c_half, phi * act[k + 1])
-            phi = _solve(b[k + 1], w[k + 1], m, c_half, phi)
-        else:
-            rhs = _apply(b[k], w[k], m, c_half, phi) * act[k + 1]
-            phi = _solve(b[k + 1], w[k + 1], m, c_half, rhs)
-        out[k + 1] = phi
-        if progress is not None and k % every == 0:
-            progress((k + 1) / nz)
+    prev = phi.copy()
+    chunk = max(1, nz // 20)
+    for k0 in range(0, nz - 1, chunk):
+        k1 = min(nz - 1, k0 + chunk)
+        _march_rows(b, w, m, act, h, scheme == "bdf2", EULER_ROWS, k0, k1, phi, prev, out)
+        if progress is not None:
+            progress(k1 / nz)
     if progress is not None:
         progress(1.0)
     return out
