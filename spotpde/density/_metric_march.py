@@ -33,7 +33,7 @@ error ``O(h**2)``.
 Hoppers (``scheme="bdf2"``): every few rows the staircase gains a cell, which joins
 empty (the face below it is a wall), a sharp perturbation on which Crank-Nicolson
 rings: ``v`` overshot its inner neighbour in the new cell (``u_x`` pointing away from
-the orifice, up to 0.06 at ``h = 1/4``, 30 degrees). The second-order backward
+the orifice, up to 0.063 per unit flux at ``h = 1/4``, 30 degrees). The second-order backward
 difference, L-stable,
 ``(I - 2h/3 L_{k+1} B_{k+1}) phi_{k+1} = (4 phi_k - phi_{k-1}) / 3``, after the same
 backward-Euler start, damps it (no outward ``u_x`` left) and keeps the flux:

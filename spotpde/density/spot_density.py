@@ -23,13 +23,19 @@ transient,             py-pde adaptive Runge-Kutta on   cross-check; explicit, s
 ``method="py-pde"``    the same operator (``_pde``)     grids only
 =====================  ===============================  ==================================
 
+Axisymmetric grids (``(z, r)``, ``rho_s`` per unit volume) and hoppers (the staircase
+``grid.active``) use finite volumes with the metric (``_geometry``): marching in height
+(``_metric_march``: Crank-Nicolson, BDF2 in hoppers) for ``D_par = 0``, sparse LU for
+``D_par > 0``, BDF2 in time; ``O(h**2)`` (staircase walls: first order in the wall
+position), flux ``Q0`` to round-off (docs/spot_density.md section 9).
+
 Open walls (a window on a wider silo) are solved on a window padded by
 ``p = 6 sqrt(b_max H)`` on each side (``H`` the height; coefficients extended by
 their edge values) with reflecting far walls, then cropped: the far walls' images
 change the window by ``exp(-p**2 / (b H)) = exp(-36)`` relative.
 
-Units: ``rho_s`` in spots per d**dims; ``v_s`` in d per unit time; ``Q0`` spots per
-unit time. Derivations and checks: docs/spot_density.md.
+Units: ``rho_s`` in spots per d**dims (per d**3 when axisymmetric); ``v_s`` in d per
+unit time; ``Q0`` spots per unit time. Derivations and checks: docs/spot_density.md.
 """
 
 from __future__ import annotations
