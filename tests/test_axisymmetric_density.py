@@ -7,7 +7,7 @@ from scipy.special import j0, jn_zeros
 
 from spotpde.density import _geometry, kinematic, traffic
 from spotpde.density import spot_density as sd
-from spotpde.density.orifice import cosine_coefficients, source_profile
+from spotpde.density.orifice import cosine_coefficients, rate_from_table, source_profile
 from spotpde.grid import Grid
 from spotpde.parameters import Orifice, Spots
 
@@ -63,8 +63,21 @@ def test_off_axis_orifice_and_unsupported_paths_raise():
         cosine_coefficients(g, Orifice(x=0.0))
     with pytest.raises(ValueError, match="^spots.rho_max"):
         traffic.transient(g, Orifice(x=0.0), Spots(rho_max=1.0), 1.0)
-    with pytest.raises(ValueError, match="^method"):
-        sd.transient(g, Orifice(x=0.0), Spots(), 1.0, method="py-pde")
+    with pytest.raises(ValueError, match="^spots.method"):
+        sd.transient(g, Orifice(x=0.0), Spots(), 1.0, method="euler")
+
+
+def test_py_pde_runge_kutta_agrees_with_bdf2_on_a_cylinder():
+    """py-pde's adaptive RK on the same metric operator vs BDF2: BDF2's O(dt^2) error."""
+    g = cylinder(2, 4, 0.25)
+    o = Orifice(x=0.0, width=1.0, rate=rate_from_table([0.0, 1.0, 2.0], [1.0, 2.0, 0.5]))
+    s = Spots(b=1.3, b_par=0.5)
+    times = np.array([0.0, 1.0, 2.0])
+    ref = {dt: sd.transient(g, o, s, 2.0, times=times, dt=dt) for dt in (0.02, 0.01)}
+    rk = sd.transient(g, o, s, 2.0, times=times, method="py-pde")
+    bdf2_error = np.abs(ref[0.02] - ref[0.01]).max() / 3          # Richardson, order 2
+    assert np.abs(rk - ref[0.01]).max() < 2 * bdf2_error
+    assert bdf2_error < 1e-4 * ref[0.01].max()
 
 
 # -- steady, D_par = 0 ------------------------------------------------------------------------

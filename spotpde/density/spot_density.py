@@ -286,20 +286,29 @@ def _steady_geometry(grid, orifice, spots, Q0, progress):
 
 def _transient_geometry(grid, orifice, spots, t_end, frame_times, last_only, progress, dt,
                         rho0, full_output, method):
-    """BDF2 on the metric / staircase finite volumes (``_geometry.assemble``)."""
-    if method != "bdf2":
-        raise ValueError(f"method: {method!r} is not available on axisymmetric or hopper grids "
-                         f"(only 'bdf2')")
+    """BDF2 (or py-pde's RK) on the metric / staircase finite volumes (``_geometry.assemble``)."""
+    if method not in TRANSIENT_METHODS:
+        raise ValueError(f"spots.method: must be one of {', '.join(map(repr, TRANSIENT_METHODS))}, "
+                         f"got {method!r}")
     g, (v, b, b_par), crop, p = _pad_geometry(grid, spots)
     base = _elliptic.floor_source(g.shape, g.spacing, source_profile(g, orifice))
     if rho0 is not None and g.shape != grid.shape:
         lo = 0 if grid.axisymmetric else p
         rho0 = np.pad(np.asarray(rho0, float), [(0, 0), (lo, p)], mode="constant")
     operator = _geometry.assemble(g, v, b * v, b_par * v)
-    volumes = np.broadcast_to(g.cell_volumes, g.shape).ravel()
-    res = _transient.integrate(g.shape, g.spacing, v, b * v, b_par * v,
-                               lambda t: orifice.rate_at(t) * base, t_end, frame_times, dt=dt,
-                               rho0=rho0, progress=progress, operator=operator, volumes=volumes)
+    if method == "py-pde":
+        from . import _pde
+        fr = _pde.integrate(g, v, b * v, b_par * v, base, orifice.rate, t_end, frame_times,
+                            rho0=rho0, progress=progress)
+        res = {"frames": fr, "outflow": np.array([(operator[1] @ f.ravel())[0] for f in fr]),
+               "inflow": np.array([orifice.rate_at(t) for t in frame_times]),
+               "dt": None, "steps": None}
+    else:
+        volumes = np.broadcast_to(g.cell_volumes, g.shape).ravel()
+        res = _transient.integrate(g.shape, g.spacing, v, b * v, b_par * v,
+                                   lambda t: orifice.rate_at(t) * base, t_end, frame_times,
+                                   dt=dt, rho0=rho0, progress=progress, operator=operator,
+                                   volumes=volumes)
     frames = crop(res["frames"])
     if full_output:
         return {**res, "frames": frames, "times": frame_times}
