@@ -148,10 +148,16 @@ def steady(grid: Grid, orifice: Orifice, spots: Spots, progress: Progress = None
         spots: ``v_s`` (d / time), ``b`` and ``b_par`` (d): floats or grid-shaped arrays.
         progress: called with the fraction done.
 
+    Axisymmetric grids and hoppers (docs/spot_density.md section 9): finite volumes with
+    the metric on the staircase ``grid.active``, marching for ``D_par = 0`` (any ``b``),
+    sparse LU for ``D_par > 0``; ``v_s * sum(rho_s * grid.horizontal_measures) = Q0`` at
+    every height to round-off for ``D_par = 0``, the top outflow ``Q0`` for ``D_par > 0``.
+
     Returns:
         ``rho_s``, grid shape, spots per d**dims: at each cell-centre height, the
         average over each cell's horizontal extent (exact for uniform ``b``; finite-volume
-        cell values otherwise).
+        cell values otherwise). Axisymmetric: ``(z, r)``, spots per d**3; hoppers: 0 on
+        inactive cells.
     """
     check_spots(grid, spots)
     check_orifice(grid, orifice)
@@ -204,7 +210,9 @@ def transient(grid: Grid, orifice: Orifice, spots: Spots, t_end: float, times=No
         full_output: return the diagnostics dict instead of the density.
         method: ``"bdf2"`` (default: implicit, factorised, :mod:`._transient`) or
             ``"py-pde"`` (py-pde's adaptive explicit Runge-Kutta on the same operator,
-            :mod:`._pde`; small grids only, a cross-check; ``dt`` is ignored).
+            :mod:`._pde`; small grids only, a cross-check; ``dt`` is ignored). On
+            axisymmetric and hopper grids both run on the metric / staircase operator
+            (``_geometry``); interacting spots (``rho_max``) refuse those grids.
 
     Returns:
         ``times is None``: ``rho_s`` at ``t_end`` (grid shape). Otherwise an array
