@@ -72,6 +72,19 @@ def test_vertical_hopper_is_a_channel_of_uniform_flow(axi):
     np.testing.assert_allclose(v[g.drift_keys[0]], 0.0, atol=1e-14)
 
 
+@pytest.mark.parametrize("axi", [False, True])
+def test_transient_spots_in_a_hopper_are_the_injected_ones(axi):
+    """Before spots reach the top: sum(rho * cell_volumes) = Q0 t (BDF2 keeps mass exactly),
+    and the inactive cells stay empty."""
+    g = hopper_grid(axi, 30.0, 0.25, H=20.0)
+    Q0, dt = 0.8, 0.05
+    times = dt * np.array([10, 40, 80])
+    frames = sd.transient(g, Orifice(x=0.0, width=W, rate=Q0), Spots(b=1.0, b_par=0.5), 4.0,
+                          times=times, dt=dt)
+    np.testing.assert_allclose((frames * g.cell_volumes).sum(axis=(1, 2)), Q0 * times, rtol=1e-10)
+    assert np.all(frames[:, ~g.active] == 0)
+
+
 def test_orifice_profile_lives_on_the_active_floor():
     g = hopper_grid(False, 30.0, 0.25)
     s = source_profile(g, Orifice(x=0.0, width=W))
