@@ -6,5 +6,7 @@
 
 Private modules hold the solvers of ``spot_density``: ``_marching`` (Crank-Nicolson /
 ADI in height), ``_spectral`` (cosine series), ``_elliptic`` (sparse steady operator
-with ``b_par > 0``), ``_transient`` (BDF2), ``_pde`` (the py-pde reference).
+with ``b_par > 0``), ``_transient`` (BDF2), ``_pde`` (the py-pde reference), and for
+axisymmetric grids and hoppers ``_geometry`` (finite volumes with the metric and the
+staircase) and ``_metric_march`` (their height marching).
 """

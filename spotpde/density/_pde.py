@@ -5,7 +5,9 @@ The right-hand side is the conservative finite-volume operator of
 (``x`` first, ``z`` last). The numba version is a compiled CSR matrix-vector product
 (constant ``Q0`` only; a time-dependent ``Q0`` uses the numpy backend). Boundary
 conditions live in ``A`` (no flux through walls and floor, inflow through the orifice,
-outflow at the top), so py-pde's boundary-condition machinery is not used.
+outflow at the top), so py-pde's boundary-condition machinery is not used. Axisymmetric
+and hopper grids use the metric / staircase operator of :mod:`spotpde.density._geometry`
+(on py-pde's ``CylindricalSymGrid`` / ``CartesianGrid``, which only carry the data).
 
 py-pde's explicit solvers (with its adaptive step control, ``MemoryStorage`` for frames
 and ``CallbackTracker`` for progress) fit this equation only on small grids: stability
@@ -22,6 +24,7 @@ from typing import Callable
 import numpy as np
 import pde
 
+from . import _geometry
 from ._elliptic import assemble
 from ..grid import Grid
 
@@ -42,7 +45,10 @@ class SpotDensityPDE(pde.PDEBase):
                  rate: float | Callable[[float], float]):
         super().__init__()
         self.spot_grid = grid
-        A, _ = assemble(grid.shape, grid.spacing, v, D_perp, D_par)
+        if _geometry.uses_geometry(grid):     # axisymmetric / hopper: the metric operator
+            A, _ = _geometry.assemble(grid, v, D_perp, D_par)
+        else:
+            A, _ = assemble(grid.shape, grid.spacing, v, D_perp, D_par)
         self.A = A
         self.q = np.asarray(q, dtype=float).ravel()
         self.rate = rate

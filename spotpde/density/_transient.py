@@ -27,7 +27,8 @@ from ..errors import NumericalError
 
 def integrate(shape, h, v, D_perp, D_par, q: Callable[[float], np.ndarray], t_end: float,
               times: np.ndarray, dt: float | None = None, rho0: np.ndarray | None = None,
-              progress: Callable[[float], None] | None = None) -> dict:
+              progress: Callable[[float], None] | None = None, operator=None,
+              volumes: np.ndarray | None = None) -> dict:
     """Integrate from ``t = 0`` to ``t_end`` and return frames at ``times``.
 
     Args:
@@ -38,13 +39,16 @@ def integrate(shape, h, v, D_perp, D_par, q: Callable[[float], np.ndarray], t_en
         dt: time step; default ``h / max(v)`` (Courant number 1), at least 20 steps.
         rho0: initial density (grid shape), default zero (an empty silo).
         progress: called with the fraction done.
+        operator: ``(A, out_row)`` built by the caller (default ``_elliptic.assemble``;
+            the metric / staircase grids pass ``_geometry.assemble``).
+        volumes: flattened cell volumes for the ``inflow`` diagnostic (default ``h**dims``).
 
     Returns:
         dict with ``frames`` (``(len(times),) + shape``), ``outflow`` (spots per unit time
         through the top at each frame), ``inflow`` (``q`` integrated over the domain at
         each frame), ``dt`` and ``steps``.
     """
-    A, out_row = assemble(shape, h, v, D_perp, D_par)
+    A, out_row = assemble(shape, h, v, D_perp, D_par) if operator is None else operator
     N = A.shape[0]
     vmax = float(np.max(v))
     if dt is None:
@@ -70,7 +74,8 @@ def integrate(shape, h, v, D_perp, D_par, q: Callable[[float], np.ndarray], t_en
             w = 0.0 if upto_t == t_old else (times[j] - t_old) / (upto_t - t_old)
             frames[j] = (1.0 - w) * rho_old + w * rho_new
             outflow[j] = (out_row @ frames[j])[0]
-            inflow[j] = q(times[j]).sum() * cell
+            inflow[j] = (q(times[j]).sum() * cell if volumes is None
+                         else float(np.dot(q(times[j]), volumes)))
             j += 1
 
     record(0.0, rho, rho, 0.0)

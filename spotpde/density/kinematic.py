@@ -10,7 +10,9 @@ velocity is ``u_z = -v``). The sign follows the void-model flux balance of the p
 up the gradient of ``v``, toward the faster-flowing centre: particles converge on the
 orifice as they fall. ``v`` obeys the same equation as the steady spot flux
 ``v_s rho_s`` with ``D_par = 0``, so :func:`speed` reuses :mod:`spotpde.spot_density`
-(unit source rate, unit spot drift).
+(unit source rate, unit spot drift). Axisymmetric grids solve
+``dv/dz = (b/r) d/dr (r dv/dr)`` with ``u_r = b dv/dr``; hoppers solve in the staircase
+(docs/spot_density.md section 9).
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from scipy.integrate import solve_ivp
 
 from ..grid import Grid
 from ..parameters import Orifice, Spots
-from . import spot_density
+from . import _geometry, spot_density
 
 __all__ = ["point_source", "speed", "velocity", "streamlines"]
 
@@ -70,7 +72,8 @@ def speed(grid: Grid, orifice: Orifice, b, progress=None) -> np.ndarray:
     Solves ``dv/dz = b lap_perp v`` (Ito form ``lap_perp(b v)`` when ``b`` varies, the
     form the spot flux obeys) from ``v = s(x)`` on the floor (the orifice profile,
     integrating to 1): ``sum(v) h**(dims-1) = 1`` at every height between reflecting
-    walls. The pipeline multiplies by ``V1 Q0`` to obtain ``v_kin``.
+    walls (axisymmetric: ``sum(v * grid.horizontal_measures) = 2 pi integral r v dr = 1``;
+    a hopper's inactive cells carry 0). The pipeline multiplies by ``V1 Q0`` to obtain ``v_kin``.
 
     Args:
         grid: the grid.
@@ -90,22 +93,46 @@ def velocity(grid: Grid, orifice: Orifice, b, progress=None) -> dict[str, np.nda
     """Kinematic velocity field: ``u_perp = b grad_perp v``, ``u_z = -v``.
 
     The horizontal gradient is taken by second-order central differences
-    (``numpy.gradient``, one-sided second order at the walls).
+    (``numpy.gradient``, one-sided second order at the walls). Axisymmetric grids:
+    ``u_r = b dv/dr``, at the first cell ``(v_1 - v_0) / 2h`` (the even extension
+    ``v(-r) = v(r)``, so ``u_r(0) = 0``). Hopper walls: in a cell next to a staircase
+    wall the gradient is the mean of its two face gradients, the wall face's being 0
+    (no flow through the wall); 0 on inactive cells.
 
     Args:
         grid, orifice, b: as :func:`speed`.
 
     Returns:
-        dict ``u_x``, [``u_y``,] ``u_z`` (grid shape), for unit flow rate.
+        dict ``u_x``, [``u_y``,] ``u_z`` (grid shape), for unit flow rate; ``u_r``,
+        ``u_z`` on axisymmetric grids (:attr:`Grid.drift_keys`).
     """
     v = speed(grid, orifice, b, progress)
     h = grid.spacing
     bb = np.asarray(b, dtype=float)
+    if _geometry.uses_geometry(grid):
+        return {grid.drift_keys[0]: np.where(grid.active, bb * _horizontal_gradient(grid, v), 0.0),
+                "u_z": -v}
     out = {"u_x": bb * np.gradient(v, h, axis=-1, edge_order=2)}
     if grid.dims == 3:
         out["u_y"] = bb * np.gradient(v, h, axis=1, edge_order=2)
     out["u_z"] = -v
     return out
+
+
+def _horizontal_gradient(grid: Grid, v: np.ndarray) -> np.ndarray:
+    """``dv/dx`` (``dv/dr``) on a metric / staircase grid, second order inside (see :func:`velocity`)."""
+    h = grid.spacing
+    grad = np.gradient(v, h, axis=-1, edge_order=2) if grid.nx >= 3 else np.zeros_like(v)
+    _, fr, _, _ = _geometry.metric(grid)
+    face = np.zeros(fr.shape)
+    face[:, 1:-1] = np.diff(v, axis=-1) / h
+    face *= fr > 0
+    closed = np.zeros(fr.shape, bool)
+    closed[:, 1:-1] = fr[:, 1:-1] == 0          # staircase walls inside the box
+    if grid.axisymmetric:
+        closed[:, 0] = True                      # the axis: v even in r
+    near = closed[:, :-1] | closed[:, 1:]
+    return np.where(near, 0.5 * (face[:, :-1] + face[:, 1:]), grad)
 
 
 @njit(cache=True)
@@ -158,9 +185,12 @@ def streamlines(fields: dict[str, np.ndarray], grid: Grid, starts, max_length: f
     direction), leaves the domain, or the length exceeds ``max_length``.
 
     Args:
-        fields: dict with ``u_x``, [``u_y``,] ``u_z`` (grid shape), e.g. from :func:`velocity`.
-        grid: the grid the fields live on.
-        starts: start points, shape ``(m, dims)``, columns ``(x, [y,] z)`` in d.
+        fields: dict with ``u_x``, [``u_y``,] ``u_z`` (grid shape), e.g. from :func:`velocity`
+            (axisymmetric grids: ``u_r``, ``u_z``).
+        grid: the grid the fields live on (with a hopper, a path ends half a cell
+            beyond the hopper wall).
+        starts: start points, shape ``(m, dims)``, columns ``(x, [y,] z)`` in d
+            (axisymmetric: ``(r, z)``; a path that reaches the axis ends there).
         max_length: longest path in d (default: 4 x (height + width)).
         rtol: relative tolerance of the integrator.
 
@@ -171,7 +201,7 @@ def streamlines(fields: dict[str, np.ndarray], grid: Grid, starts, max_length: f
     dims = grid.dims
     if starts.shape[1] != dims:
         raise ValueError(f"starts: must have {dims} columns (x, [y,] z), got shape {starts.shape}")
-    names = ["u_x"] + (["u_y"] if dims == 3 else []) + ["u_z"]
+    names = list(grid.drift_keys)
     missing = [n for n in names if n not in fields]
     if missing:
         raise ValueError(f"fields: lack {missing}; need {names}")
@@ -199,8 +229,12 @@ def streamlines(fields: dict[str, np.ndarray], grid: Grid, starts, max_length: f
     reach_floor.terminal = True
     reach_floor.direction = -1
 
+    hop = grid.hopper
+
     def leave(_s, X):
         inside = min(X[:-1].min() - x0, x1 - X[:-1].max(), z1 - X[-1])
+        if hop is not None:      # beyond the staircase: half a cell outside the wall
+            inside = min(inside, hop.half_width_at(X[-1] - z0) + 0.5 * h - abs(X[0] - hop.centre))
         return inside + 1e-9
     leave.terminal = True
     leave.direction = -1

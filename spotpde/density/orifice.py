@@ -16,6 +16,9 @@ Profiles (``spotpde.parameters.Orifice``):
   supersampled 16 x 16).
 * ``"gaussian"``: ``width = 2 sigma`` per horizontal axis; exact cell averages (erf).
 * ``width >= floor side`` (any profile): uniform flow over the whole floor.
+* axisymmetric grids (the orifice on the axis, ``width`` its diameter): exact ring
+  masses of the disk or the radial Gaussian; a point orifice fills the first ring
+  ``r < h`` (:func:`_ring_profile`). Hoppers: the profile on the active floor cells.
 
 Reflecting walls fold the profile by the method of images (a part of the orifice
 beyond a wall is mirrored back inside), so the profile integrates to 1 and its cosine
@@ -60,7 +63,10 @@ def check_orifice(grid: Grid, orifice: Orifice) -> None:
     if not (np.isfinite(orifice.width) and orifice.width >= 0):
         problems.append(f"orifice.width: must be a finite number >= 0, got {orifice.width!r}")
     x0, x1 = grid.x_range
-    if not (x0 <= orifice.x <= x1):
+    if grid.axisymmetric and orifice.x != 0.0:
+        problems.append(f"orifice.x: an axisymmetric orifice is centred on the axis (x = 0), "
+                        f"got {orifice.x!r}")
+    elif not (x0 <= orifice.x <= x1):
         problems.append(f"orifice.x: must lie on the floor [{x0}, {x1}], got {orifice.x!r}")
     if grid.dims == 3 and orifice.y is not None and not (x0 <= orifice.y <= x1):
         problems.append(f"orifice.y: must lie on the floor [{x0}, {x1}], got {orifice.y!r}")
@@ -107,7 +113,10 @@ def rate_from_table(times: Sequence[float], values: Sequence[float]) -> Callable
 
 
 def is_uniform_flow(grid: Grid, orifice: Orifice) -> bool:
-    """True when the orifice spans the whole floor (width >= the floor's side)."""
+    """True when the orifice spans the whole floor (width >= the floor's side; the
+    diameter ``2 a`` on an axisymmetric grid)."""
+    if grid.axisymmetric:
+        return orifice.width >= 2.0 * grid.x_range[1]
     return orifice.width >= grid.x_range[1] - grid.x_range[0]
 
 
@@ -197,9 +206,19 @@ def source_profile(grid: Grid, orifice: Orifice) -> np.ndarray:
     Returns:
         ``s`` in d**-(dims-1), shape ``(nx,)`` (2D) or ``(ny, nx)`` (3D, array order),
         with ``s.sum() * h**(dims-1) == 1`` to round-off. The injection flux density
-        through floor cell ``i`` is ``Q0(t) * s[i]``.
+        through floor cell ``i`` is ``Q0(t) * s[i]``. Axisymmetric grids: ``(nr,)``
+        per unit area (d**-2), ``sum(s * grid.horizontal_measures) == 1``, exact ring
+        masses (:func:`_ring_profile`). With a hopper, the profile is restricted to
+        the active floor cells (``grid.active[0]``) and renormalised.
     """
     check_orifice(grid, orifice)
+    if grid.axisymmetric or grid.hopper is not None:
+        return _staircase(grid, _ring_profile(grid, orifice) if grid.axisymmetric
+                          else _cartesian_profile(grid, orifice))
+    return _cartesian_profile(grid, orifice)
+
+
+def _cartesian_profile(grid: Grid, orifice: Orifice) -> np.ndarray:
     h, n, lo = grid.spacing, grid.nx, grid.x_range[0]
     measure = grid.horizontal_cell_measure
     if is_uniform_flow(grid, orifice):
@@ -221,6 +240,53 @@ def source_profile(grid: Grid, orifice: Orifice) -> np.ndarray:
             f"inside the floor {grid.x_range}"
         )
     return w / (total * measure)
+
+
+def _ring_profile(grid: Grid, orifice: Orifice) -> np.ndarray:
+    """Axisymmetric floor density per unit area on the rings ``[i h, (i + 1) h]``.
+
+    Ring masses are exact: a uniform disk of radius ``R = W/2`` puts
+    ``(min(r_+, R)**2 - min(r_-, R)**2) / R**2`` in ring ``[r_-, r_+]``; a Gaussian
+    (``sigma = W/2`` per horizontal axis) ``exp(-r_-**2 / 2 sigma**2) - exp(-r_+**2 / 2 sigma**2)``;
+    a point orifice puts its unit mass in the first ring, the disk ``r < h`` (the same
+    second moment ``<r**2> = h**2/2`` as the Cartesian cloud in cell of a point at a cell
+    corner). Mass beyond a reflecting wall ``r = a`` is mirrored back about it (ring
+    ``a + t`` onto ``a - t``); open walls clip and renormalise.
+    """
+    h, n, a = grid.spacing, grid.nx, grid.x_range[1]
+    measure = np.broadcast_to(np.asarray(grid.horizontal_measures, float), (n,))
+    if is_uniform_flow(grid, orifice):
+        return np.full(n, 1.0 / (np.pi * a * a))
+    if orifice.width == 0.0:
+        mass = np.zeros(n)
+        mass[0] = 1.0
+        return mass / measure
+    R = 0.5 * orifice.width
+    reach = R if orifice.profile == "uniform" else 8.0 * R       # 8 sigma support
+    ext = max(n, int(np.ceil(reach / h)) + 1)
+    edges = h * np.arange(ext + 1)
+    if orifice.profile == "uniform":
+        ring = np.diff(np.minimum(edges, R) ** 2 / R**2)
+    else:                      # exp(-r-^2/2s^2) - exp(-r+^2/2s^2), accurate in the tail
+        e0, e1 = edges[:-1] ** 2 / (2.0 * R * R), edges[1:] ** 2 / (2.0 * R * R)
+        ring = -np.exp(-e0) * np.expm1(e0 - e1)
+    mass = ring[:n].copy()
+    if grid.walls == "reflecting" and ext > n:
+        j = np.arange(n, ext)
+        r = np.mod(j, 2 * n)
+        np.add.at(mass, np.where(r < n, r, 2 * n - 1 - r), ring[n:])
+    return mass / (mass.sum() * measure)
+
+
+def _staircase(grid: Grid, s: np.ndarray) -> np.ndarray:
+    """Restrict a floor profile to the hopper's active floor cells and renormalise."""
+    if grid.hopper is not None:
+        s = s * np.asarray(grid.active)[0]
+    total = float(np.sum(s * grid.horizontal_measures))
+    if not total > 0:
+        raise ValueError("orifice.width: the orifice injects nothing into the hopper's "
+                         "floor cells (grid.active)")
+    return s / total
 
 
 # -- spectral coefficients (reflecting walls) ---------------------------------------------
@@ -257,6 +323,9 @@ def cosine_coefficients(grid: Grid, orifice: Orifice, n_modes: int | None = None
         d**-(dims-1), ``n = n_modes``.
     """
     check_orifice(grid, orifice)
+    if grid.axisymmetric or grid.hopper is not None:
+        raise ValueError("grid: cosine coefficients exist for Cartesian boxes only, "
+                         "not for axisymmetric or hopper grids")
     n, L = (n_modes or grid.nx), grid.x_range[1] - grid.x_range[0]
     k = np.pi * np.arange(n) / L
     c = np.where(np.arange(n) == 0, 1.0, 2.0) / L

@@ -23,13 +23,19 @@ transient,             py-pde adaptive Runge-Kutta on   cross-check; explicit, s
 ``method="py-pde"``    the same operator (``_pde``)     grids only
 =====================  ===============================  ==================================
 
+Axisymmetric grids (``(z, r)``, ``rho_s`` per unit volume) and hoppers (the staircase
+``grid.active``) use finite volumes with the metric (``_geometry``): marching in height
+(``_metric_march``: Crank-Nicolson, BDF2 in hoppers) for ``D_par = 0``, sparse LU for
+``D_par > 0``, BDF2 in time; ``O(h**2)`` (staircase walls: first order in the wall
+position), flux ``Q0`` to round-off (docs/spot_density.md section 9).
+
 Open walls (a window on a wider silo) are solved on a window padded by
 ``p = 6 sqrt(b_max H)`` on each side (``H`` the height; coefficients extended by
 their edge values) with reflecting far walls, then cropped: the far walls' images
 change the window by ``exp(-p**2 / (b H)) = exp(-36)`` relative.
 
-Units: ``rho_s`` in spots per d**dims; ``v_s`` in d per unit time; ``Q0`` spots per
-unit time. Derivations and checks: docs/spot_density.md.
+Units: ``rho_s`` in spots per d**dims (per d**3 when axisymmetric); ``v_s`` in d per
+unit time; ``Q0`` spots per unit time. Derivations and checks: docs/spot_density.md.
 """
 
 from __future__ import annotations
@@ -39,7 +45,8 @@ from typing import Callable
 
 import numpy as np
 
-from . import _elliptic, _marching, _spectral, _transient
+from . import _elliptic, _geometry, _marching, _metric_march, _spectral, _transient
+from ..errors import NumericalError
 from ..grid import Grid
 from .orifice import check_orifice, source_profile
 from ..parameters import SPOT_MODES, Orifice, Spots
@@ -141,10 +148,16 @@ def steady(grid: Grid, orifice: Orifice, spots: Spots, progress: Progress = None
         spots: ``v_s`` (d / time), ``b`` and ``b_par`` (d): floats or grid-shaped arrays.
         progress: called with the fraction done.
 
+    Axisymmetric grids and hoppers (docs/spot_density.md section 9): finite volumes with
+    the metric on the staircase ``grid.active``, marching for ``D_par = 0`` (any ``b``),
+    sparse LU for ``D_par > 0``; ``v_s * sum(rho_s * grid.horizontal_measures) = Q0`` at
+    every height to round-off for ``D_par = 0``, the top outflow ``Q0`` for ``D_par > 0``.
+
     Returns:
         ``rho_s``, grid shape, spots per d**dims: at each cell-centre height, the
         average over each cell's horizontal extent (exact for uniform ``b``; finite-volume
-        cell values otherwise).
+        cell values otherwise). Axisymmetric: ``(z, r)``, spots per d**3; hoppers: 0 on
+        inactive cells.
     """
     check_spots(grid, spots)
     check_orifice(grid, orifice)
@@ -152,6 +165,8 @@ def steady(grid: Grid, orifice: Orifice, spots: Spots, progress: Progress = None
         raise ValueError('spots.rho_max: interacting spots have no steady solver; use '
                         'spots.mode = "transient" (spotpde.traffic)')
     Q0 = _constant_rate(orifice)
+    if _geometry.uses_geometry(grid):
+        return _steady_geometry(grid, orifice, spots, Q0, progress)
     g, (v, b, b_par), crop = _pad(grid, spots)
     if _is_uniform(b) and _is_uniform(b_par) and (_is_zero(b_par) or _is_uniform(v)):
         phi = _spectral.steady_flux(g, orifice, float(np.ravel(b)[0]), Q0, float(np.ravel(b_par)[0]))
@@ -195,7 +210,9 @@ def transient(grid: Grid, orifice: Orifice, spots: Spots, t_end: float, times=No
         full_output: return the diagnostics dict instead of the density.
         method: ``"bdf2"`` (default: implicit, factorised, :mod:`._transient`) or
             ``"py-pde"`` (py-pde's adaptive explicit Runge-Kutta on the same operator,
-            :mod:`._pde`; small grids only, a cross-check; ``dt`` is ignored).
+            :mod:`._pde`; small grids only, a cross-check; ``dt`` is ignored). On
+            axisymmetric and hopper grids both run on the metric / staircase operator
+            (``_geometry``); interacting spots (``rho_max``) refuse those grids.
 
     Returns:
         ``times is None``: ``rho_s`` at ``t_end`` (grid shape). Otherwise an array
@@ -215,6 +232,9 @@ def transient(grid: Grid, orifice: Orifice, spots: Spots, t_end: float, times=No
     frame_times = np.array([t_end], float) if times is None else np.sort(np.asarray(times, float))
     if frame_times.size and (frame_times[0] < 0 or frame_times[-1] > t_end * (1 + 1e-12)):
         raise ValueError(f"spots.t_end: frame times must lie in [0, {t_end}]")
+    if _geometry.uses_geometry(grid):
+        return _transient_geometry(grid, orifice, spots, t_end, frame_times, times is None,
+                                   progress, dt, rho0, full_output, method)
     g, (v, b, b_par), crop = _pad(grid, spots)
     base = _elliptic.floor_source(g.shape, g.spacing, source_profile(g, orifice))
     if rho0 is not None and g.shape != grid.shape:
@@ -243,6 +263,64 @@ def transient(grid: Grid, orifice: Orifice, spots: Spots, t_end: float, times=No
     if full_output:
         return {**res, "frames": frames, "times": frame_times}
     return frames[-1] if times is None else frames
+
+
+# -- axisymmetric grids and hoppers (docs/spot_density.md section 9) ------------------------
+def _pad_geometry(grid: Grid, spots: Spots):
+    p = pad_cells(grid, spots.b)
+    g, coeffs, crop = _geometry.pad(grid, p, [spots.drift, spots.b, spots.b_par])
+    return g, coeffs, crop, p
+
+
+def _steady_geometry(grid, orifice, spots, Q0, progress):
+    """Steady ``rho_s`` on a metric / staircase grid: marching (``D_par = 0``) or FV + LU."""
+    g, (v, b, b_par), crop, _ = _pad_geometry(grid, spots)
+    flux_floor = Q0 * source_profile(g, orifice)
+    m, w, _, active = _geometry.metric(g)
+    if _is_zero(b_par):
+        bb = np.broadcast_to(np.asarray(b, dtype=float), g.shape)
+        scheme = "cn" if g.hopper is None else "bdf2"   # BDF2: L-stable where cells join
+        rho = _metric_march.march(flux_floor, bb, g.spacing, m, w, active, progress, scheme) / v
+    else:
+        A, _ = _geometry.assemble(g, v, b * v, b_par * v)
+        q = _elliptic.floor_source(g.shape, g.spacing, flux_floor)
+        rho = _elliptic.factorize(A, 2)(-q).reshape(g.shape)
+        if not np.all(np.isfinite(rho)):
+            raise NumericalError("spot density: the steady solve produced non-finite values")
+    if progress is not None:
+        progress(1.0)
+    return crop(np.where(active, rho, 0.0))
+
+
+def _transient_geometry(grid, orifice, spots, t_end, frame_times, last_only, progress, dt,
+                        rho0, full_output, method):
+    """BDF2 (or py-pde's RK) on the metric / staircase finite volumes (``_geometry.assemble``)."""
+    if method not in TRANSIENT_METHODS:
+        raise ValueError(f"spots.method: must be one of {', '.join(map(repr, TRANSIENT_METHODS))}, "
+                         f"got {method!r}")
+    g, (v, b, b_par), crop, p = _pad_geometry(grid, spots)
+    base = _elliptic.floor_source(g.shape, g.spacing, source_profile(g, orifice))
+    if rho0 is not None and g.shape != grid.shape:
+        lo = 0 if grid.axisymmetric else p
+        rho0 = np.pad(np.asarray(rho0, float), [(0, 0), (lo, p)], mode="constant")
+    operator = _geometry.assemble(g, v, b * v, b_par * v)
+    if method == "py-pde":
+        from . import _pde
+        fr = _pde.integrate(g, v, b * v, b_par * v, base, orifice.rate, t_end, frame_times,
+                            rho0=rho0, progress=progress)
+        res = {"frames": fr, "outflow": np.array([(operator[1] @ f.ravel())[0] for f in fr]),
+               "inflow": np.array([orifice.rate_at(t) for t in frame_times]),
+               "dt": None, "steps": None}
+    else:
+        volumes = np.broadcast_to(g.cell_volumes, g.shape).ravel()
+        res = _transient.integrate(g.shape, g.spacing, v, b * v, b_par * v,
+                                   lambda t: orifice.rate_at(t) * base, t_end, frame_times,
+                                   dt=dt, rho0=rho0, progress=progress, operator=operator,
+                                   volumes=volumes)
+    frames = crop(res["frames"])
+    if full_output:
+        return {**res, "frames": frames, "times": frame_times}
+    return frames[-1] if last_only else frames
 
 
 def solve(grid: Grid, orifice: Orifice, spots: Spots, progress: Progress = None) -> np.ndarray:

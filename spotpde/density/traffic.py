@@ -78,6 +78,9 @@ def transient(grid: Grid, orifice: Orifice, spots: Spots, t_end: float, times=No
     """
     from . import spot_density
 
+    if grid.axisymmetric or grid.hopper is not None:
+        raise ValueError("spots.rho_max: interacting spots are solved in Cartesian boxes only, "
+                         "not on axisymmetric or hopper grids")
     if not (np.isfinite(t_end) and t_end > 0):
         raise ValueError(f"t_end: must be > 0, got {t_end!r}")
     rho_max = np.inf if spots.rho_max is None else float(spots.rho_max)
