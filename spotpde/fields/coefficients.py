@@ -490,6 +490,14 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
         grid-shaped float64 arrays, ``u`` in d per unit time, ``D`` in d**2 per unit time.
     """
     lam = _check_rule(rule)
+    if grid.axisymmetric:   # cylindrical silos and cones: ring convolutions (docs/walls.md)
+        from . import _axisymmetric
+
+        if diffusivity not in ("passage", "mean-field"):
+            raise ValueError(f"diffusivity: must be 'passage' or 'mean-field', got {diffusivity!r}")
+        rho_s = _check_inputs(grid, rho_s, None)
+        return _axisymmetric.particle_fields(grid, rho_s, spots, kernel, lam,
+                                             spot_diffusivity_tensor, diffusivity, walls, mask)
     rho_s = _check_inputs(grid, rho_s, kernel)
     _check_coefficient(grid, "spots.drift", spots.drift)
     D_s = spot_diffusivity(grid, spots, spot_diffusivity_tensor)
