@@ -149,13 +149,30 @@ def _zero(v) -> bool:
 
 # -- coverage -------------------------------------------------------------------------------
 
-def coverage(grid: Grid, kernel, mask: np.ndarray | None = None) -> np.ndarray:
-    """``phi = (1/V1) int chi w``: the fraction of a spot's kernel in the material.
+def _transpose(W: np.ndarray) -> np.ndarray:
+    """``WT[l, j, b] = W[l, j + b - mb, 2 mb - b]``: the weights of source ``j`` on target
+    ``j + b - mb`` (zero where that target lies outside ``0 .. nx - 1``)."""
+    nl, nx, nb = W.shape
+    mb = (nb - 1) // 2
+    i = np.arange(nx)[:, None] + np.arange(nb)[None, :] - mb
+    ok = (i >= 0) & (i < nx)
+    out = W[:, np.clip(i, 0, nx - 1), (nb - 1 - np.arange(nb))[None, :]]
+    return np.where(ok[None], out, 0.0)
 
-    ``chi`` = ``mask`` (default ``grid.active``: 1 in the material), zero beyond the
-    cylinder wall when it is reflecting (continued outward when open), continued beyond
-    the floor and the top (edge values), convolved with the same ``m = 0`` ring weights
-    as the fields, so ``phi = 1`` to round-off where the kernel lies inside the material.
+
+def coverage(grid: Grid, kernel, mask: np.ndarray | None = None) -> np.ndarray:
+    """``phi_j``: the fraction of the particle volume a spot in cell ``j`` displaces that
+    lies in the material, ``phi_j = sum_i V_i chi_i W0[i, j] / (V1 V_j)``.
+
+    ``chi`` = ``mask`` (default ``grid.active``: 1 in the material), zero beyond a
+    reflecting cylinder wall, continued beyond the floor and the top (edge values). The
+    sum runs over the target cells ``i`` (volumes ``V_i``, the quadrature the particle
+    flux uses) with the same ``m = 0`` ring weights as the fields, so that in the discrete
+    sums every spot step displaces exactly ``V1 dR`` (docs/walls.md); ``phi`` differs
+    from 1 by ~1e-8 where the kernel lies inside the material (the ring weights are
+    reciprocal to second order only). With an open cylinder wall ``chi`` is continued
+    outward and ``phi`` is the direct ring convolution of ``chi`` (no targets exist
+    beyond ``r = a``).
     """
     h = grid.spacing
     nz, nx = grid.shape
@@ -167,19 +184,24 @@ def coverage(grid: Grid, kernel, mask: np.ndarray | None = None) -> np.ndarray:
                          f"{grid.shape} (array order {grid.axes})")
     if not np.all((chi >= 0.0) & (chi <= 1.0)):
         raise ValueError("mask: values must lie in [0, 1] (material fraction of a cell)")
-    if grid.hopper is None and mask is None and grid.walls == "reflecting":
-        # chi = 1 for r < a at every height: sum the weights over all heights
-        j = np.arange(nx)[:, None] + np.arange(2 * mb + 1)[None, :] - mb
-        phi_r = np.where(j < nx, W.sum(axis=0), 0.0).sum(axis=1) / kernel.V1
-        phi = np.broadcast_to(phi_r[None, :], grid.shape).copy()
+    vol = grid.cell_volumes[0]
+    padded = np.pad(chi, ((mz, mz), (0, 0)), mode="edge")
+    if grid.walls == "reflecting":
+        WT = _transpose(W)
+        if grid.hopper is None and mask is None:
+            phi_r = (WT.sum(axis=0) * np.pad(vol, mb)[np.arange(nx)[:, None] + np.arange(2 * mb + 1)]
+                     ).sum(axis=1) / (kernel.V1 * vol)
+            phi = np.broadcast_to(phi_r[None, :], grid.shape).copy()
+        else:
+            phi = _rings.ring_convolve([padded * vol[None, :]], WT)[0][mz:mz + nz] / (kernel.V1 * vol)
     else:
-        padded = np.pad(chi, ((mz, mz), (0, 0)), mode="edge")
-        extra = None if grid.walls == "reflecting" else np.repeat(padded[:, -1:], max(mb, 1), axis=1)
+        extra = np.repeat(padded[:, -1:], max(mb, 1), axis=1)
         phi = _rings.ring_convolve([padded], W, beyond=extra)[0][mz:mz + nz] / kernel.V1
     inside = chi > 0
     if np.any(phi[inside] <= 1e-12):
         raise ValueError("mask: a material cell has no material within the kernel's reach")
-    return np.clip(phi, 1e-300, 1.0)
+    # no clip at 1: next to the axis the target sums exceed V1 by up to ~1e-3 h^2
+    return np.maximum(phi, 1e-300)
 
 
 # -- the wall layer --------------------------------------------------------------------------
@@ -250,7 +272,7 @@ def add_wall_layer(grid: Grid, kernel, lam: float, G: Mapping, phi, fields: dict
         for k, j, d in faces:
             val = d * _face_extrapolate(g, act, j, k, d, 3)
             if phi is not None:
-                val /= min(1.0, max(1e-300, _face_extrapolate(phi, act, j, k, d, 4)))
+                val /= max(1e-300, _face_extrapolate(phi, act, j, k, d, 4))
             col = j if d > 0 else j - 1       # face ring of radius (col + 1) h
             src[k, col] += val
         if not np.any(src):
@@ -291,7 +313,8 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots, kernel, lam: float,
     renorm = _walls.check_walls(walls) == "renormalise" and (
         grid.walls == "reflecting" or grid.hopper is not None)
     phi = coverage(grid, kernel, mask) if renorm else None
-    inv = 1.0 if phi is None else 1.0 / phi
+    # sources vanish on inactive cells, where phi may be ~0
+    inv = 1.0 if phi is None else np.where(act, 1.0 / np.where(act, phi, 1.0), 0.0)
 
     G = {k: None if _zero(d) else rho * d for k, d in D_s.items()}
     div = divergence(grid, G, act)

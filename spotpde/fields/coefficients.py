@@ -500,6 +500,13 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
                                              spot_diffusivity_tensor, diffusivity, walls, mask)
     rho_s = _check_inputs(grid, rho_s, kernel)
     _check_coefficient(grid, "spots.drift", spots.drift)
+    if grid.hopper is not None:   # a wedge: the staircase grid.active is the silo
+        from . import _hopper
+
+        if diffusivity not in ("passage", "mean-field"):
+            raise ValueError(f"diffusivity: must be 'passage' or 'mean-field', got {diffusivity!r}")
+        return _hopper.particle_fields(grid, rho_s, spots, kernel, lam, spot_diffusivity_tensor,
+                                       diffusivity, walls, mask)
     D_s = spot_diffusivity(grid, spots, spot_diffusivity_tensor)
     comps = _COMPONENTS[grid.dims]
     v_s = spots.drift
