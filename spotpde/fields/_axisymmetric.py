@@ -123,6 +123,31 @@ def divergence(grid: Grid, T: Mapping, active=None) -> dict:
     return out
 
 
+def flux_velocity(grid: Grid, fields: Mapping) -> dict:
+    """``u_p - div D_p`` on an axisymmetric or hopper grid (cylindrical / staircase
+    differences; zero on inactive cells)."""
+    keys = grid.diffusivity_keys
+    if grid.axisymmetric:
+        div = divergence(grid, {k: fields[k] for k in keys})
+    else:
+        from ._hopper import divergence as cartesian_divergence
+        div = cartesian_divergence(grid, {k: fields[k] for k in keys}, grid.active)
+    return {f"u_{a}": np.where(grid.active, np.asarray(fields[f"u_{a}"], dtype=float) - div[a], 0.0)
+            for a in (("r", "z") if grid.axisymmetric else ("x", "z"))}
+
+
+def velocity_divergence(grid: Grid, u: Mapping) -> np.ndarray:
+    """``div u``: ``(1/r) d_r(r u_r) + d_z u_z`` (axisymmetric) or ``d_x u_x + d_z u_z``,
+    by the staircase differences of :func:`masked_derivative`."""
+    h, act = grid.spacing, grid.active
+    if grid.axisymmetric:
+        r = grid.r[None, :]
+        radial = masked_derivative(r * u["u_r"], h, 1, act, even_axis=True) / r
+    else:
+        radial = masked_derivative(u["u_x"], h, 1, act)
+    return radial + masked_derivative(u["u_z"], h, 0, act)
+
+
 # -- inputs ---------------------------------------------------------------------------------
 
 def spot_tensor(grid: Grid, spots, tensor: Mapping | None = None) -> dict:

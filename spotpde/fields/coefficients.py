@@ -565,6 +565,9 @@ def flux_velocity(grid: Grid, fields: Mapping[str, np.ndarray]) -> dict[str, np.
     Returns:
         ``{"u_x", ["u_y",] "u_z"}`` in d per unit time.
     """
+    if grid.axisymmetric or grid.hopper is not None:   # cylindrical / staircase differences
+        from ._axisymmetric import flux_velocity as staircase_flux_velocity
+        return staircase_flux_velocity(grid, fields)
     div = divergence(grid, {k: fields[k] for k in DIFFUSIVITY_KEYS[grid.dims]})
     return {f"u_{a}": np.asarray(fields[f"u_{a}"], dtype=float) - div[a]
             for a in _COMPONENTS[grid.dims]}
@@ -583,4 +586,7 @@ def incompressibility_defect(grid: Grid, fields: Mapping[str, np.ndarray]) -> np
         grid-shaped array in 1 / unit time.
     """
     flux = flux_velocity(grid, fields)
+    if grid.axisymmetric or grid.hopper is not None:
+        from ._axisymmetric import velocity_divergence
+        return velocity_divergence(grid, flux)
     return sum(_gradient(grid, flux[f"u_{a}"], a) for a in _COMPONENTS[grid.dims])
