@@ -25,7 +25,7 @@ The integrals (docs/walls.md, "Axisymmetric silos"):
   source circle inside the spot: ``2 t_max`` or ``2 sin t_max``); over a cell, for
   ``m = 0`` the annulus-disk overlap area is closed form (lens areas) and for ``m = 1``
   Green's theorem turns ``int cos t dA`` into the two annulus arcs (closed form) plus one
-  smooth integral along the spot's circle (16-point Gauss-Legendre); the height integral
+  smooth integral along the spot's circle (12-point Gauss-Legendre); the height integral
   is split where the spot's cross-section radius meets a cell edge (the integrand has
   ``(z - z*)^(3/2)`` points there) and each piece uses 16-point Gauss-Legendre after
   ``z = a + (b - a)(1 - cos(pi u))/2``. Numba.
@@ -55,7 +55,12 @@ __all__ = ["ring_weights", "ring_convolve", "halfwidths"]
 _GL16_U, _GL16_W = np.polynomial.legendre.leggauss(16)
 _GL16_U = 0.5 * (_GL16_U + 1.0)
 _GL16_W = 0.5 * _GL16_W
+_GL12_U, _GL12_W = np.polynomial.legendre.leggauss(12)
+_GL12_U = 0.5 * (_GL12_U + 1.0)
+_GL12_W = 0.5 * _GL12_W
 _CACHE: OrderedDict = OrderedDict()
+#: unit-height ellipsoid weights (the uniform kernel's w**power is height**power times them)
+_UNIT: OrderedDict = OrderedDict()
 _FACTORS: OrderedDict = OrderedDict()
 _CACHE_SIZE = 12
 
@@ -96,7 +101,7 @@ def _tmax(r, s, rho):
 
 
 @njit(cache=True)
-def _slice(r, r0, r1, rho, m, faces, gu, gw):
+def _slice(r, r0, r1, rho, m, faces, pu, pw):
     """Integral over one height ``z'`` (the spot's cross-section a disk of radius ``rho``):
     ``int_annulus cos(m t) dA`` (cells, ``r' in [r0, r1]``) or ``r1 int cos(m t) dt``
     on the circle of radius ``r1`` (faces)."""
@@ -119,18 +124,16 @@ def _slice(r, r0, r1, rho, m, faces, gu, gw):
     p0 = math.acos(c0)
     if p0 > p1:
         acc = 0.0
-        for q in range(gu.size):
-            sub = 0.5 * (1.0 - math.cos(math.pi * gu[q]))
-            phi = p1 + (p0 - p1) * sub
-            jac = (p0 - p1) * 0.5 * math.pi * math.sin(math.pi * gu[q])
-            acc += gw[q] * jac * math.sqrt(max(r * r + rho * rho + 2.0 * r * rho * math.cos(phi), 0.0)) \
+        for q in range(pu.size):   # smooth along the arc: plain Gauss-Legendre
+            phi = p1 + (p0 - p1) * pu[q]
+            acc += pw[q] * (p0 - p1) * math.sqrt(max(r * r + rho * rho + 2.0 * r * rho * math.cos(phi), 0.0)) \
                 * math.cos(phi)
         out += 2.0 * rho * acc
     return out
 
 
 @njit(cache=True)
-def _uniform_weights(nx, mb, mz, h, R, Rz, m, faces, gu, gw):
+def _uniform_weights(nx, mb, mz, h, R, Rz, m, faces, gu, gw, pu, pw):
     """``W[l, i, b]`` of the unit-height ellipsoid (l >= mz half; mirrored by the caller)."""
     nb = 2 * mb + 1
     out = np.zeros((mz + 1, nx, nb))
@@ -154,13 +157,14 @@ def _uniform_weights(nx, mb, mz, h, R, Rz, m, faces, gu, gw):
                     nc += 1
             cand[nc] = Rz
             nc += 1
+            dr = max(0.0, r0 - r, r - r1)
             for l in range(mz + 1):
                 za = (l - 0.5) * h
                 zb = (l + 0.5) * h
                 lo = max(za, 0.0)       # even in z': integrate z' >= 0, double the l = 0 half
                 hi = min(zb, Rz)
-                if hi <= lo:
-                    continue
+                if hi <= lo or (dr / R) ** 2 + (lo / Rz) ** 2 >= 1.0:
+                    continue            # the cell lies outside the ellipsoid
                 pts = np.empty(nc + 2)
                 pts[0] = lo
                 pts[1] = hi
@@ -180,7 +184,7 @@ def _uniform_weights(nx, mb, mz, h, R, Rz, m, faces, gu, gw):
                         zz = a + length * sub
                         jac = length * 0.5 * math.pi * math.sin(math.pi * gu[q])
                         rho = R * math.sqrt(max(0.0, 1.0 - (zz / Rz) ** 2))
-                        total += gw[q] * jac * _slice(r, r0, r1, rho, m, faces, gu, gw)
+                        total += gw[q] * jac * _slice(r, r0, r1, rho, m, faces, pu, pw)
                 out[l, i, b] = 2.0 * total if l == 0 else total
     return out
 
@@ -256,17 +260,64 @@ def _generic_weights(kernel, h, nx, mb, mz, power, m, faces):
 
 # -- public --------------------------------------------------------------------------------
 
+#: bump when a quadrature changes: the weights stored on disk are then recomputed
+_DISK_VERSION = 1
+#: False: never read or write the disk cache (benchmarks time the computation)
+USE_DISK = True
+
+
+def _disk(key, compute):
+    """``compute()`` stored in ``<user cache>/rings/<hash>.npy`` (read back on later runs;
+    any failure to read or write the file only costs the computation)."""
+    import hashlib
+    import os
+    import tempfile
+
+    from .._cache import user_cache_dir
+
+    if not USE_DISK:
+        return compute()
+    name = hashlib.sha1(repr((_DISK_VERSION,) + key).encode()).hexdigest() + ".npy"
+    path = user_cache_dir() / "rings" / name
+    try:
+        return np.load(path, allow_pickle=False)
+    except (OSError, ValueError):
+        pass
+    out = compute()
+    try:
+        path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=".rings.", suffix=".npy", dir=path.parent)
+        with os.fdopen(fd, "wb") as fh:
+            np.save(fh, out, allow_pickle=False)
+        os.replace(tmp, path)
+    except OSError:
+        pass
+    return out
+
+
 def _raw_weights(kernel, h, nx, power, m, faces):
     mz, mb = halfwidths(kernel, h)
     shape = getattr(kernel, "shape_name", "")
-    if shape == "uniform":
-        half = _uniform_weights(int(nx), mb, mz, float(h), float(kernel.a_h), float(kernel.a_z),
-                                int(m), bool(faces), _GL16_U, _GL16_W) * kernel.amplitude**power
-        return np.concatenate([half[:0:-1], half], axis=0)
-    if shape == "gaussian":
+    if shape == "uniform":   # w**power = height**power * indicator: one computation
+        key = ("uniform", float(kernel.a_h), float(kernel.aspect), float(h), int(nx), int(m), bool(faces))
+        if key not in _UNIT:
+            def compute():
+                half = _uniform_weights(int(nx), mb, mz, float(h), float(kernel.a_h), float(kernel.a_z),
+                                        int(m), bool(faces), _GL16_U, _GL16_W, _GL12_U, _GL12_W)
+                return np.concatenate([half[:0:-1], half], axis=0)
+            _UNIT[key] = _disk(key, compute)
+            while len(_UNIT) > _CACHE_SIZE:
+                _UNIT.popitem(last=False)
+        return _UNIT[key] * kernel.amplitude**power
+    if shape == "gaussian":   # closed forms: faster than the disk
         return _gaussian_weights(kernel, h, nx, mb, mz, power, m, faces)
-    half = _generic_weights(kernel, h, nx, mb, mz, power, m, faces)
-    return np.concatenate([half[:0:-1], half], axis=0)
+
+    def compute():
+        half = _generic_weights(kernel, h, nx, mb, mz, power, m, faces)
+        return np.concatenate([half[:0:-1], half], axis=0)
+    key = (type(kernel).__name__, float(kernel.a_h), float(kernel.aspect), float(kernel.amplitude),
+           float(h), int(nx), int(power), int(m), bool(faces))
+    return _disk(key, compute)
 
 
 def ring_weights(kernel, h: float, nx: int, power: int = 1, m: int = 0,
