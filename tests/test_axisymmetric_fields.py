@@ -244,3 +244,20 @@ def test_axisymmetric_inputs_are_checked():
         C.particle_fields(g, rho[:, :-1], Spots(), k3)
     with pytest.raises(ValueError, match="^walls"):
         C.particle_fields(g, rho, Spots(), k3, walls="mirror")
+
+
+@pytest.mark.parametrize("rule", [0.5, 1.0])
+def test_passage_keeps_the_mean_flow_of_the_mean_field(rule):
+    """``u_p - div D_p`` (cylindrical divergence) is the same for both diffusivities: the
+    passage drift adds ``div(D_p - D_p_mf)``; renormalised walls and the wall layer."""
+    kernel = kernels.Uniform(radius=2.5, height=0.0024, dims=3)
+    g = _cylinder(6.0, 20.0, 0.25)
+    rho = _bessel_density(g)
+    u = {}
+    for dif in ("mean-field", "passage"):
+        f = C.particle_fields(g, rho, Spots(b=1.3), kernel, rule=rule, diffusivity=dif)
+        u[dif] = C.flux_velocity(g, f)
+    assert np.abs(u["passage"]["u_r"]).max() > 0
+    for k in ("u_r", "u_z"):
+        scale = np.abs(u["mean-field"][k]).max()
+        np.testing.assert_allclose(u["passage"][k], u["mean-field"][k], rtol=0, atol=1e-12 * scale)

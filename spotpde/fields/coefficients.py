@@ -135,8 +135,12 @@ def spot_diffusivity(grid: Grid, spots: Spots, tensor: Mapping | None = None) ->
             grid arrays.
 
     Returns:
-        ``{"D_xx": ..., "D_xz": ..., ...}``: floats or grid arrays (``DIFFUSIVITY_KEYS``).
+        ``{"D_xx": ..., "D_xz": ..., ...}``: floats or grid arrays (``DIFFUSIVITY_KEYS``;
+        axisymmetric grids: ``D_rr``, ``D_rz``, ``D_zz``).
     """
+    if grid.axisymmetric:   # cylindrical components D_rr (= D_theta_theta), D_rz, D_zz
+        from ._axisymmetric import spot_tensor
+        return spot_tensor(grid, spots, tensor)
     keys = DIFFUSIVITY_KEYS[grid.dims]
     if tensor is not None:
         unknown = sorted(set(tensor) - set(keys))
