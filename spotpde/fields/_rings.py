@@ -248,13 +248,18 @@ def _generic_weights(kernel, h, nx, mb, mz, power, m, faces):
             tws = tmax[:, None] * tw[None, :] * 2.0               # both signs of t
             s = np.sqrt(np.maximum(r * r + rp[:, None] ** 2 - 2 * r * rp[:, None] * np.cos(t), 0.0))
             ang = np.cos(m * t) * tws
+            # every height cell at once: nodes of cell l are zz[start[l]:start[l + 1]]
+            zz, zw, start = [], [], [0]
             for l in range(mz + 1):
                 ns = nsub if (near and l <= 1) else 1
                 zedges = (l - 0.5) * h + np.arange(ns) * h / ns
-                zz = (zedges[:, None] + gu[None, :] * h / ns).ravel()
-                zw = (np.broadcast_to(gw, (ns, nq)) * h / ns).ravel()
-                wv = kernel.evaluate(s[None, :, :], 0.0 * s[None, :, :], zz[:, None, None]) ** power
-                out[l, i, b] = np.einsum("z,r,zrt,rt->", zw, rw, wv, ang)
+                zz.append((zedges[:, None] + gu[None, :] * h / ns).ravel())
+                zw.append((np.broadcast_to(gw, (ns, nq)) * h / ns).ravel())
+                start.append(start[-1] + ns * nq)
+            zz, zw = np.concatenate(zz), np.concatenate(zw)
+            wv = kernel.evaluate(s[None, :, :], 0.0 * s[None, :, :], zz[:, None, None]) ** power
+            per_node = np.einsum("zrt,r,rt->z", wv, rw, ang) * zw
+            out[:, i, b] = np.add.reduceat(per_node, start[:-1])
     return out
 
 
@@ -394,7 +399,8 @@ def ring_convolve(sources, W: np.ndarray, beyond: np.ndarray | None = None) -> l
     F = scipy.fft.rfft(stack, n=L, axis=1)
     Fp = np.zeros(F.shape[:2] + (nx + 2 * mb,), dtype=complex)
     Fp[:, :, mb:mb + F.shape[2]] = F
-    win = np.lib.stride_tricks.sliding_window_view(Fp, nb, axis=2)[:, :, :nx]   # (ns, nq, nx, nb)
-    out_hat = np.einsum("qib,sqib->sqi", What, win, optimize=True)
+    out_hat = np.zeros(F.shape[:2] + (nx,), dtype=complex)
+    for b in range(nb):   # the band: no (nq, nx, nb) temporaries per source
+        out_hat += What[None, :, :, b] * Fp[:, :, b:b + nx]
     out = scipy.fft.irfft(out_hat, n=L, axis=1)[:, :nz]
     return [np.ascontiguousarray(o) for o in out]
