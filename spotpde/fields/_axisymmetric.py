@@ -249,25 +249,21 @@ def _face_extrapolate(f, active, j, k, direction, nmax):
     return vals[0]
 
 
-def wall_faces(grid: Grid) -> list[tuple[int, int, int]]:
+def wall_faces(grid: Grid, both_box_walls: bool = False) -> list[tuple[int, int, int]]:
     """Vertical wall faces ``(k, j, direction)``: cell ``(k, j)`` is active and its
-    neighbour at ``j + direction`` is inactive, or ``j = nx - 1``, ``direction = +1``
-    with a reflecting cylinder wall."""
-    act = grid.active
-    nz, nx = grid.shape
-    faces = []
-    for k in range(nz):
-        for j in range(nx):
-            if not act[k, j]:
-                continue
-            if j == nx - 1:
-                if grid.walls == "reflecting":
-                    faces.append((k, j, 1))
-            elif not act[k, j + 1]:
-                faces.append((k, j, 1))
-            if j > 0 and not act[k, j - 1]:
-                faces.append((k, j, -1))
-    return faces
+    neighbour at ``j + direction`` is inactive, or lies beyond a reflecting wall (the
+    cylinder wall ``r = a``; with ``both_box_walls`` also the low end, a Cartesian box)."""
+    act = np.asarray(grid.active, dtype=bool)
+    wall = grid.walls == "reflecting"
+    nbr_hi = np.concatenate([act[:, 1:], np.full((act.shape[0], 1), not wall)], axis=1)
+    nbr_lo = np.concatenate([np.full((act.shape[0], 1), not (wall and both_box_walls)), act[:, :-1]],
+                            axis=1)
+    if not both_box_walls:      # the axis is never a wall
+        nbr_lo[:, 0] = True
+    hi = np.argwhere(act & ~nbr_hi)
+    lo = np.argwhere(act & ~nbr_lo)
+    faces = [(int(k), int(j), 1) for k, j in hi] + [(int(k), int(j), -1) for k, j in lo]
+    return sorted(faces)
 
 
 def add_wall_layer(grid: Grid, kernel, lam: float, G: Mapping, phi, fields: dict) -> None:

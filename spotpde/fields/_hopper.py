@@ -47,21 +47,9 @@ def divergence(grid: Grid, T, active) -> dict:
 
 def wall_faces(grid: Grid) -> list[tuple[int, int, int]]:
     """Vertical wall faces ``(k, j, direction)`` of the staircase and the box walls."""
-    act = grid.active
-    nz, nx = grid.shape
-    faces = []
-    for k in range(nz):
-        for j in range(nx):
-            if not act[k, j]:
-                continue
-            for d in (-1, 1):
-                jj = j + d
-                if jj < 0 or jj >= nx:
-                    if grid.walls == "reflecting":
-                        faces.append((k, j, d))
-                elif not act[k, jj]:
-                    faces.append((k, j, d))
-    return faces
+    from ._axisymmetric import wall_faces as faces
+
+    return faces(grid, both_box_walls=True)
 
 
 def _face_stencil(grid: Grid, kernel) -> np.ndarray:
