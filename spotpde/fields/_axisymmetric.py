@@ -23,9 +23,10 @@ cells. Regular axis: ``u_r`` is an ``m = 1`` convolution, which vanishes like ``
 Walls: the cylinder wall ``r = a`` (reflecting) and, with a hopper, the faces between
 active and inactive cells of ``grid.active`` (the staircase). ``phi`` is the ring
 convolution of the material indicator ``chi`` (``grid.active``; zero beyond a reflecting
-wall; continued beyond the floor and the top), normalised by ``V1``. The wall layer sums
-over the vertical wall faces (rings of radius ``r_f``) with the ``m = 1`` (radial push)
-and ``m = 0`` (the ``D_rz`` part) face weights of ``_rings``.
+wall; continued beyond the floor and the top), summed over the target cells (so every
+spot step displaces exactly ``V1 dR``). The wall layer sums over the vertical wall faces
+(rings of radius ``r_f``) and the staircase's horizontal faces (annuli) with the
+``m = 1`` (radial push) and ``m = 0`` (vertical push) face weights of ``_rings``.
 """
 
 from __future__ import annotations
@@ -231,15 +232,16 @@ def coverage(grid: Grid, kernel, mask: np.ndarray | None = None) -> np.ndarray:
 
 # -- the wall layer --------------------------------------------------------------------------
 
-def _face_extrapolate(f, active, j, k, direction, nmax):
-    """Value of ``f`` at the face of cell ``(k, j)`` on the side ``direction`` (+1: outer),
-    from up to ``nmax`` active cells inward (orders 3 / cubic, 2, 1)."""
+def _face_extrapolate(f, active, j, k, direction, nmax, axis=1):
+    """Value of ``f`` at the face of cell ``(k, j)`` on the side ``direction`` (+1: the
+    high side) along ``axis`` (1: r or x, 0: z), from up to ``nmax`` active cells inward
+    (orders: cubic with four cells, 3 with three, 2, 1)."""
     vals = []
     for q in range(nmax):
-        jj = j - direction * q
-        if jj < 0 or jj >= f.shape[1] or not active[k, jj]:
+        kk, jj = (k, j - direction * q) if axis == 1 else (k - direction * q, j)
+        if not (0 <= jj < f.shape[1] and 0 <= kk < f.shape[0]) or not active[kk, jj]:
             break
-        vals.append(f[k, jj])
+        vals.append(f[kk, jj])
     if len(vals) >= 4 and nmax >= 4:
         return (35 * vals[0] - 35 * vals[1] + 21 * vals[2] - 5 * vals[3]) / 16.0
     if len(vals) >= 3:
@@ -247,6 +249,37 @@ def _face_extrapolate(f, active, j, k, direction, nmax):
     if len(vals) == 2:
         return (3 * vals[0] - vals[1]) / 2.0
     return vals[0]
+
+
+def horizontal_faces(grid: Grid) -> list[tuple[int, int, int]]:
+    """Horizontal wall faces ``(k, j, direction)`` of the staircase: cell ``(k, j)`` is
+    active and its neighbour at ``k + direction`` is an inactive cell (the floor and the
+    top are not walls)."""
+    act = np.asarray(grid.active, dtype=bool)
+    below = np.zeros_like(act)
+    below[1:] = act[1:] & ~act[:-1]
+    above = np.zeros_like(act)
+    above[:-1] = act[:-1] & ~act[1:]
+    return sorted([(int(k), int(j), -1) for k, j in np.argwhere(below)]
+                  + [(int(k), int(j), 1) for k, j in np.argwhere(above)])
+
+
+def face_sources(grid, g, phi, faces, axis):
+    """Face values ``(G.n) / phi`` on a face array: vertical faces (``axis = 1``) on
+    ``(nz, nx + 1)``, index ``j + 1`` for the face on the high side of column ``j``;
+    horizontal faces (``axis = 0``) on ``(nz + 1, nx)``, index ``k + 1`` likewise."""
+    act = grid.active
+    nz, nx = grid.shape
+    src = np.zeros((nz, nx + 1) if axis == 1 else (nz + 1, nx))
+    for k, j, d in faces:
+        val = d * _face_extrapolate(g, act, j, k, d, 3, axis)
+        if phi is not None:
+            val /= max(1e-300, _face_extrapolate(phi, act, j, k, d, 4, axis))
+        if axis == 1:
+            src[k, j + 1 if d > 0 else j] += val
+        else:
+            src[k + 1 if d > 0 else k, j] += val
+    return src
 
 
 def wall_faces(grid: Grid, both_box_walls: bool = False) -> list[tuple[int, int, int]]:
@@ -267,39 +300,39 @@ def wall_faces(grid: Grid, both_box_walls: bool = False) -> list[tuple[int, int,
 
 
 def add_wall_layer(grid: Grid, kernel, lam: float, G: Mapping, phi, fields: dict) -> None:
-    """``u += (1 - 2 lam) int_walls w (D_s rho_s).n / phi dA`` over the vertical wall faces.
+    """``u += (1 - 2 lam) int_walls w (D_s rho_s).n / phi dA`` over the wall faces.
 
-    A face of cell ``j`` at radius ``r_f`` with outward normal ``+-e_r`` pushes with
-    ``(G_rr e_r + G_rz e_z) (+-1) / phi`` at the face (values extrapolated from the cells
-    inward, third order; ``phi`` cubic), spread by the face-ring weights (``m = 1`` for
-    ``u_r``, ``m = 0`` for ``u_z``). Horizontal staircase faces (``n = +-e_z``) push with
-    ``G_zz`` and ``G_rz``; they are not included (zero for ``b_par = 0`` and a diagonal
-    ``D_s``, the spot model's default).
+    A vertical face of cell ``j`` at radius ``r_f`` with outward normal ``+-e_r`` pushes
+    with ``(G_rr e_r + G_rz e_z) (+-1) / phi``, a horizontal face (normal ``+-e_z``, the
+    staircase's steps) with ``(G_rz e_r + G_zz e_z) (+-1) / phi`` (values at the face
+    extrapolated from the cells inward, third order; ``phi`` cubic), spread by the
+    face-ring and annulus weights of ``_rings`` (``m = 1`` for ``u_r``, ``m = 0`` for
+    ``u_z``).
     """
     if lam == 0.5:
         return
-    faces = wall_faces(grid)
-    if not faces:
-        return
-    act = grid.active
-    nz, nx = grid.shape
     h = grid.spacing
-    for key, comp, m in (("D_rr", "u_r", 1), ("D_rz", "u_z", 0)):
-        g = G.get(key)
-        if _zero(g):
+    nz, nx = grid.shape
+    c = 1.0 - 2.0 * lam
+    for axis, faces in ((1, wall_faces(grid)), (0, horizontal_faces(grid))):
+        if not faces:
             continue
-        g = np.broadcast_to(np.asarray(g, dtype=float), grid.shape)
-        src = np.zeros(grid.shape)
-        for k, j, d in faces:
-            val = d * _face_extrapolate(g, act, j, k, d, 3)
-            if phi is not None:
-                val /= max(1e-300, _face_extrapolate(phi, act, j, k, d, 4))
-            col = j if d > 0 else j - 1       # face ring of radius (col + 1) h
-            src[k, col] += val
-        if not np.any(src):
-            continue
-        W = _rings.ring_weights(kernel, h, nx, 1, m, faces=True)
-        fields[comp] = fields[comp] + (1.0 - 2.0 * lam) * _rings.ring_convolve([src], W)[0]
+        pushes = (("D_rr", "u_r", 1), ("D_rz", "u_z", 0)) if axis == 1 else \
+            (("D_rz", "u_r", 1), ("D_zz", "u_z", 0))
+        for key, comp, m in pushes:
+            g = G.get(key)
+            if _zero(g):
+                continue
+            src = face_sources(grid, np.broadcast_to(np.asarray(g, dtype=float), grid.shape),
+                               phi, faces, axis)
+            if not np.any(src):
+                continue
+            if axis == 1:   # face ring j at radius (j + 1) h: columns 1 .. nx of src
+                W = _rings.ring_weights(kernel, h, nx, 1, m, faces=True)
+                fields[comp] = fields[comp] + c * _rings.ring_convolve([src[:, 1:]], W)[0]
+            else:           # annuli at heights k h: rows 0 .. nz of src
+                W = _rings.ring_weights(kernel, h, nx, 1, m, annuli=True)
+                fields[comp] = fields[comp] + c * _rings.ring_convolve([src], W)[0][:nz]
 
 
 # -- the fields -------------------------------------------------------------------------------

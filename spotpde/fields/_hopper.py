@@ -14,11 +14,11 @@ cross a wall face (``_axisymmetric.masked_derivative``: one-sided next to an ina
 cell), ``phi`` the coverage of the material indicator ``chi = grid.active``
 (``_walls.coverage`` with that mask: free volume is conserved at the inclined walls as at
 flat ones) and the wall layer summed over the vertical wall faces of the staircase and
-the reflecting box walls: each face carries ``(D_s rho_s).n / phi`` extrapolated to it
-from the active cells inward (third order; ``phi`` cubic) and spreads it with ``w``
-evaluated at the target's offset from the face, averaged along the face (6 sub-samples,
-as ``_wall_layer`` does). Horizontal staircase faces push with ``D_zz rho_s`` and
-``D_xz rho_s``: not included (zero for ``b_par = 0`` and a diagonal ``D_s``). Fields are
+the reflecting box walls, and over the horizontal steps of the staircase: each face
+carries ``(D_s rho_s).n / phi`` extrapolated to it from the active cells inward (third
+order; ``phi`` cubic) and spreads it with ``w`` evaluated at the target's offset from the
+face, averaged along the face (6 sub-samples, as ``_wall_layer`` does): one FFT
+convolution of the face values per face orientation and component. Fields are
 zero on inactive cells.
 """
 
@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _walls
-from ._axisymmetric import _face_extrapolate, _zero, masked_derivative
+from ._axisymmetric import _zero, masked_derivative
 from .._roundoff import clip_roundoff
 from ..grid import DIFFUSIVITY_KEYS, DRIFT_KEYS, Grid
 
@@ -52,10 +52,12 @@ def wall_faces(grid: Grid) -> list[tuple[int, int, int]]:
     return faces(grid, both_box_walls=True)
 
 
-def _face_stencil(grid: Grid, kernel) -> np.ndarray:
-    """``S[dk, di] = h <w((di + 1/2) h, dk h - t)>_t``: the push of a face on the cell
-    ``di`` columns right of the face's right-hand cell, ``dk`` rows up (average along
-    the face, 6 sub-samples; the normal offset exact)."""
+def _face_stencil(grid: Grid, kernel, axis: int = 1) -> np.ndarray:
+    """The push of one face on the cells around it, averaged along the face (6
+    sub-samples; the normal offset exact). Vertical faces (``axis = 1``):
+    ``S[dk, di] = h <w((di + 1/2) h, dk h - t)>_t`` on the cell ``di`` columns right of
+    the face's right-hand cell; horizontal faces (``axis = 0``):
+    ``S[dk, di] = h <w(di h - t, (dk + 1/2) h)>_t``."""
     from .coefficients import _SUBSAMPLE
 
     h = grid.spacing
@@ -65,42 +67,45 @@ def _face_stencil(grid: Grid, kernel) -> np.ndarray:
     di = np.arange(-M, M + 1)
     dk = np.arange(-K, K + 1)
     sub = (np.arange(_SUBSAMPLE) + 0.5) / _SUBSAMPLE - 0.5
-    z = dk[:, None] * h + sub[None, :] * h                        # (nk, sub)
-    x = (di + 0.5) * h
-    w = kernel.evaluate(x[None, None, :], z[:, :, None])          # (nk, sub, ni)
-    return h * w.mean(axis=1)
+    if axis == 1:
+        z = dk[:, None] * h + sub[None, :] * h                        # (nk, sub)
+        x = (di + 0.5) * h
+        w = kernel.evaluate(x[None, None, :], z[:, :, None])          # (nk, sub, ni)
+        return h * w.mean(axis=1)
+    x = di[:, None] * h + sub[None, :] * h                            # (ni, sub)
+    z = (dk + 0.5) * h
+    w = kernel.evaluate(x[None, :, :], z[:, None, None])              # (nk, ni, sub)
+    return h * w.mean(axis=2)
 
 
 def add_wall_layer(grid: Grid, kernel, lam: float, G, phi, fields: dict) -> None:
-    """``u += (1 - 2 lam) sum_faces w (D_s rho_s).n / phi h`` over the vertical faces."""
+    """``u += (1 - 2 lam) sum_faces w (D_s rho_s).n / phi h`` over the wall faces: the
+    vertical ones (``G_xx``, ``G_xz``) and the staircase's horizontal steps (``G_xz``,
+    ``G_zz``)."""
     from . import convolution
+    from ._axisymmetric import face_sources, horizontal_faces
 
     if lam == 0.5:
         return
-    faces = wall_faces(grid)
-    if not faces:
-        return
-    act = grid.active
     nz, nx = grid.shape
-    stencil = None
-    for key, comp in (("D_xx", "u_x"), ("D_xz", "u_z")):
-        g = G.get(key)
-        if _zero(g):
+    c = 1.0 - 2.0 * lam
+    for axis, faces in ((1, wall_faces(grid)), (0, horizontal_faces(grid))):
+        if not faces:
             continue
-        g = np.broadcast_to(np.asarray(g, dtype=float), grid.shape)
-        # face c + 1/2 between columns c and c + 1 (c = -1 .. nx - 1) at column c + 1
-        src = np.zeros((nz, nx + 1))
-        for k, j, d in faces:
-            val = d * _face_extrapolate(g, act, j, k, d, 3)
-            if phi is not None:
-                val /= min(1.0, max(1e-300, _face_extrapolate(phi, act, j, k, d, 4)))
-            src[k, j + 1 if d > 0 else j] += val
-        if not np.any(src):
-            continue
-        if stencil is None:
-            stencil = _face_stencil(grid, kernel)
-        out = convolution.convolve(src, stencil, mode="linear")[:, :nx]
-        fields[comp] = fields[comp] + (1.0 - 2.0 * lam) * out
+        pushes = (("D_xx", "u_x"), ("D_xz", "u_z")) if axis == 1 else (("D_xz", "u_x"), ("D_zz", "u_z"))
+        stencil = None
+        for key, comp in pushes:
+            g = G.get(key)
+            if _zero(g):
+                continue
+            src = face_sources(grid, np.broadcast_to(np.asarray(g, dtype=float), grid.shape),
+                               phi, faces, axis)
+            if not np.any(src):
+                continue
+            if stencil is None:
+                stencil = _face_stencil(grid, kernel, axis)
+            out = convolution.convolve(src, stencil, mode="linear")
+            fields[comp] = fields[comp] + c * (out[:, :nx] if axis == 1 else out[:nz])
 
 
 def particle_fields(grid: Grid, rho_s, spots, kernel, lam, tensor, diffusivity, walls, mask):

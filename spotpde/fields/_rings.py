@@ -189,18 +189,45 @@ def _uniform_weights(nx, mb, mz, h, R, Rz, m, faces, gu, gw, pu, pw):
     return out
 
 
+@njit(cache=True)
+def _uniform_annuli(nx, mb, M, h, R, Rz, m, pu, pw):
+    """Horizontal faces: ``int_annulus cos(m t) dA`` of the unit-height ellipsoid at the
+    height offsets ``(l - M + 1/2) h``, ``l = 0 .. 2M``."""
+    nb = 2 * mb + 1
+    out = np.zeros((2 * M + 1, nx, nb))
+    for i in range(nx):
+        r = (i + 0.5) * h
+        for b in range(nb):
+            j = i + b - mb
+            if j < 0:
+                continue
+            r0 = j * h
+            r1 = (j + 1) * h
+            for l in range(2 * M + 1):
+                dz = abs((l - M + 0.5) * h)
+                if dz >= Rz:
+                    continue
+                rho = R * math.sqrt(1.0 - (dz / Rz) ** 2)
+                out[l, i, b] = _slice(r, r0, r1, rho, m, False, pu, pw)
+    return out
+
+
 # -- Gaussian: separable, Bessel in the azimuth ------------------------------------------
 
-def _gaussian_weights(kernel, h, nx, mb, mz, power, m, faces):
+def _gaussian_weights(kernel, h, nx, mb, mz, power, m, faces, annuli=False):
     sig = kernel.a_h / math.sqrt(power)
-    half = kernel._axis_average(mz, h / kernel.a_z, power) * h       # int over z-cells
-    zavg = np.concatenate([half[:0:-1], half])
+    if annuli:   # point values at the height offsets (l - mz - 1/2) h, l = 0 .. 2 mz + 2
+        dz = (np.arange(2 * mz + 3) - (mz + 1) + 0.5) * h
+        zavg = np.exp(-power * dz**2 / (2.0 * kernel.a_z**2))
+    else:
+        half = kernel._axis_average(mz, h / kernel.a_z, power) * h       # int over z-cells
+        zavg = np.concatenate([half[:0:-1], half])
     i = np.arange(nx)[:, None]
     b = np.arange(2 * mb + 1)[None, :]
     j = i + b - mb
     r = (i + 0.5) * h
     valid = j >= 0
-    if faces:
+    if faces and not annuli:
         rf = (j + 1.0) * h
         H = rf * 2.0 * math.pi * np.exp(-(r - rf) ** 2 / (2 * sig**2)) * special.ive(m, r * rf / sig**2)
     else:
@@ -218,14 +245,14 @@ def _gaussian_weights(kernel, h, nx, mb, mz, power, m, faces):
 
 # -- any other kernel: tensor quadrature ---------------------------------------------------
 
-def _generic_weights(kernel, h, nx, mb, mz, power, m, faces):
+def _generic_weights(kernel, h, nx, mb, mz, power, m, faces, annuli=False):
     nq, nt = 6, 48
     gu, gw = np.polynomial.legendre.leggauss(nq)
     gu, gw = 0.5 * (gu + 1.0), 0.5 * gw
     tu, tw = np.polynomial.legendre.leggauss(nt)
     tu, tw = 0.5 * (tu + 1.0), 0.5 * tw
     reach = kernel.reach[0]
-    out = np.zeros((mz + 1, nx, 2 * mb + 1))
+    out = np.zeros((2 * mz + 3 if annuli else mz + 1, nx, 2 * mb + 1))
     for i in range(nx):
         r = (i + 0.5) * h
         for b in range(2 * mb + 1):
@@ -234,7 +261,7 @@ def _generic_weights(kernel, h, nx, mb, mz, power, m, faces):
                 continue
             near = abs(b - mb) <= 1
             nsub = 4 if near else 1
-            if faces:
+            if faces and not annuli:
                 rp = np.array([(j + 1.0) * h])
                 rw = np.array([(j + 1.0) * h])
             else:
@@ -248,6 +275,11 @@ def _generic_weights(kernel, h, nx, mb, mz, power, m, faces):
             tws = tmax[:, None] * tw[None, :] * 2.0               # both signs of t
             s = np.sqrt(np.maximum(r * r + rp[:, None] ** 2 - 2 * r * rp[:, None] * np.cos(t), 0.0))
             ang = np.cos(m * t) * tws
+            if annuli:   # point values at the height offsets (l - mz - 1/2) h
+                zz = (np.arange(2 * mz + 3) - (mz + 1) + 0.5) * h
+                wv = kernel.evaluate(s[None, :, :], 0.0 * s[None, :, :], zz[:, None, None]) ** power
+                out[:, i, b] = np.einsum("zrt,r,rt->z", wv, rw, ang)
+                continue
             # every height cell at once: nodes of cell l are zz[start[l]:start[l + 1]]
             zz, zw, start = [], [], [0]
             for l in range(mz + 1):
@@ -300,13 +332,17 @@ def _disk(key, compute):
     return out
 
 
-def _raw_weights(kernel, h, nx, power, m, faces):
+def _raw_weights(kernel, h, nx, power, m, faces, annuli=False):
     mz, mb = halfwidths(kernel, h)
     shape = getattr(kernel, "shape_name", "")
     if shape == "uniform":   # w**power = height**power * indicator: one computation
-        key = ("uniform", float(kernel.a_h), float(kernel.aspect), float(h), int(nx), int(m), bool(faces))
+        key = ("uniform", float(kernel.a_h), float(kernel.aspect), float(h), int(nx), int(m),
+               bool(faces)) + (("annuli",) if annuli else ())
         if key not in _UNIT:
             def compute():
+                if annuli:
+                    return _uniform_annuli(int(nx), mb, mz + 1, float(h), float(kernel.a_h),
+                                           float(kernel.a_z), int(m), _GL12_U, _GL12_W)
                 half = _uniform_weights(int(nx), mb, mz, float(h), float(kernel.a_h), float(kernel.a_z),
                                         int(m), bool(faces), _GL16_U, _GL16_W, _GL12_U, _GL12_W)
                 return np.concatenate([half[:0:-1], half], axis=0)
@@ -315,20 +351,22 @@ def _raw_weights(kernel, h, nx, power, m, faces):
                 _UNIT.popitem(last=False)
         return _UNIT[key] * kernel.amplitude**power
     if shape == "gaussian":   # closed forms: faster than the disk
-        return _gaussian_weights(kernel, h, nx, mb, mz, power, m, faces)
+        return _gaussian_weights(kernel, h, nx, mb, mz, power, m, faces, annuli)
 
     def compute():
-        half = _generic_weights(kernel, h, nx, mb, mz, power, m, faces)
-        return np.concatenate([half[:0:-1], half], axis=0)
+        out = _generic_weights(kernel, h, nx, mb, mz, power, m, faces, annuli)
+        return out if annuli else np.concatenate([out[:0:-1], out], axis=0)
     key = (type(kernel).__name__, float(kernel.a_h), float(kernel.aspect), float(kernel.amplitude),
-           float(h), int(nx), int(power), int(m), bool(faces))
+           float(h), int(nx), int(power), int(m), bool(faces)) + (("annuli",) if annuli else ())
     return _disk(key, compute)
 
 
 def ring_weights(kernel, h: float, nx: int, power: int = 1, m: int = 0,
-                 faces: bool = False) -> np.ndarray:
+                 faces: bool = False, annuli: bool = False) -> np.ndarray:
     """``W[l, i, b]``: the ring-integrated ``w**power`` (module docstring), in d**3 (cells)
-    or d**2 (faces).
+    or d**2 (``faces``: the vertical rings of radius ``(j + 1) h``; ``annuli``: the
+    horizontal faces ``r' in [j h, (j + 1) h]`` at the height offsets ``(l - M + 1/2) h``,
+    ``M = mz + 1``: ``int_annulus w cos(m t) dA``).
 
     ``l = 0 .. 2 mz`` is the source's height offset ``(l - mz) h``, ``i`` the target
     column, ``b = 0 .. 2 mb`` the source column ``j = i + b - mb`` (zero where ``j < 0``;
@@ -338,15 +376,17 @@ def ring_weights(kernel, h: float, nx: int, power: int = 1, m: int = 0,
     if getattr(kernel, "dims", None) != 3:
         raise ValueError(f"kernel: an axisymmetric grid needs a 3D kernel (dims=3), got "
                          f"dims={getattr(kernel, 'dims', None)!r}")
+    if annuli:
+        faces = True
     key = (type(kernel).__name__, float(kernel.a_h), float(kernel.aspect), float(kernel.amplitude),
-           float(h), int(nx), int(power), int(m), bool(faces))
+           float(h), int(nx), int(power), int(m), bool(faces), bool(annuli))
     if key in _CACHE:
         _CACHE.move_to_end(key)
         return _CACHE[key]
-    W = _raw_weights(kernel, h, nx, power, m, faces)
+    W = _raw_weights(kernel, h, nx, power, m, faces, annuli)
     if not faces:
         # every row normalised to V_power over all rings; the m = 1 rows by the same factor
-        fkey = key[:-2]
+        fkey = key[:-3]
         if fkey not in _FACTORS:
             W0 = W if m == 0 else _raw_weights(kernel, h, nx, power, 0, False)
             _FACTORS[fkey] = kernel.moment(power) / W0.sum(axis=(0, 2))
@@ -361,7 +401,8 @@ def ring_weights(kernel, h: float, nx: int, power: int = 1, m: int = 0,
 
 
 def ring_convolve(sources, W: np.ndarray, beyond: np.ndarray | None = None) -> list[np.ndarray]:
-    """``out[k, i] = sum_{l, b} W[l, i, b] f[k + l - mz, i + b - mb]`` for every source ``f``.
+    """``out[k, i] = sum_{l, b} W[l, i, b] f[k - (l - mz), i + b - mb]`` for every source ``f``
+    (``mz = (len(W) - 1) / 2``; the cell weights are even in ``l - mz``).
 
     Sources are zero outside the grid (no spots below the floor, above the top or beyond
     ``r = a``) unless ``beyond`` gives the columns ``nx, nx + 1, ...`` (at most ``mb``) of
@@ -390,7 +431,6 @@ def ring_convolve(sources, W: np.ndarray, beyond: np.ndarray | None = None) -> l
     Wz[:keep + 1] = Wc[keep:]
     if keep:
         Wz[L - keep:] = Wc[:keep]
-    # W is even in the height offset: correlation = convolution
     What = scipy.fft.rfft(Wz, axis=0)
     stack = np.stack([np.asarray(f, dtype=float) for f in sources])
     if beyond is not None and np.shape(beyond)[1]:
