@@ -119,8 +119,11 @@ def test_gaussian_blob_fields_converge_at_second_order(rule):
         assert np.all(orders > 1.8), (k, e)
 
 
-def test_uniform_density_gives_the_local_fields():
-    kernel = kernels.Uniform(radius=1.3, height=0.01, dims=3, aspect=0.8)
+@pytest.mark.parametrize("kernel", [
+    kernels.Uniform(radius=1.3, height=0.01, dims=3, aspect=0.8),
+    kernels.Exponential(length=0.12, volume=0.05, dims=3, aspect=1.5),
+])
+def test_uniform_density_gives_the_local_fields(kernel):
     g = _cylinder(8.0, 10.0, 0.25, walls="open")
     spots = Spots(drift=1.7, b=1.3, b_par=0.4)
     f = C.particle_fields(g, np.full(g.shape, 2.5), spots, kernel, rule=1.0,
