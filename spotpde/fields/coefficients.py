@@ -489,28 +489,30 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
             kernel beyond a reflecting wall displaces nothing. Identical with open walls.
         mask: optional material indicator for ``phi`` (see ``_walls.coverage``).
 
+    Axisymmetric grids (3D kernel, ``rho_s`` per d**3; ``spotpde.fields._axisymmetric``)
+    and hoppers (the staircase ``grid.active``; ``_hopper``): docs/walls.md sections 8-9.
+
     Returns:
-        ``{"u_x", ["u_y",] "u_z", "D_xx", "D_xz", "D_zz", ["D_yy", "D_xy", "D_yz"]}``:
-        grid-shaped float64 arrays, ``u`` in d per unit time, ``D`` in d**2 per unit time.
+        ``{"u_x", ["u_y",] "u_z", "D_xx", "D_xz", "D_zz", ["D_yy", "D_xy", "D_yz"]}``
+        (``grid.drift_keys + grid.diffusivity_keys``: ``u_r, u_z, D_rr, D_rz, D_zz`` when
+        axisymmetric, ``D_theta_theta = D_rr``; zero on inactive cells): grid-shaped
+        float64 arrays, ``u`` in d per unit time, ``D`` in d**2 per unit time.
     """
     lam = _check_rule(rule)
-    if grid.axisymmetric:   # cylindrical silos and cones: ring convolutions (docs/walls.md)
-        from . import _axisymmetric
-
+    if grid.axisymmetric or grid.hopper is not None:   # cylinders, cones, wedges
         if diffusivity not in ("passage", "mean-field"):
             raise ValueError(f"diffusivity: must be 'passage' or 'mean-field', got {diffusivity!r}")
-        rho_s = _check_inputs(grid, rho_s, None)
-        return _axisymmetric.particle_fields(grid, rho_s, spots, kernel, lam,
-                                             spot_diffusivity_tensor, diffusivity, walls, mask)
+        if grid.axisymmetric:   # ring convolutions, 3D kernel
+            from ._axisymmetric import particle_fields as fields_of
+            rho_s = _check_inputs(grid, rho_s, None)
+        else:                   # a 2D wedge: the staircase grid.active is the silo
+            from ._hopper import particle_fields as fields_of
+            rho_s = _check_inputs(grid, rho_s, kernel)
+            _check_coefficient(grid, "spots.drift", spots.drift)
+        return fields_of(grid, rho_s, spots, kernel, lam, spot_diffusivity_tensor, diffusivity,
+                         walls, mask)
     rho_s = _check_inputs(grid, rho_s, kernel)
     _check_coefficient(grid, "spots.drift", spots.drift)
-    if grid.hopper is not None:   # a wedge: the staircase grid.active is the silo
-        from . import _hopper
-
-        if diffusivity not in ("passage", "mean-field"):
-            raise ValueError(f"diffusivity: must be 'passage' or 'mean-field', got {diffusivity!r}")
-        return _hopper.particle_fields(grid, rho_s, spots, kernel, lam, spot_diffusivity_tensor,
-                                       diffusivity, walls, mask)
     D_s = spot_diffusivity(grid, spots, spot_diffusivity_tensor)
     comps = _COMPONENTS[grid.dims]
     v_s = spots.drift
