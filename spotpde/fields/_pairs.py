@@ -98,6 +98,9 @@ def _two_point_integrals(grid: Grid, rho_s, spots: Spots, kernel, r1, r2,
     """Checked inputs, then ``(X(r1, r2), X(r1, r1), X(r2, r2))`` of :func:`_cross_integrals`."""
     from .coefficients import _check_inputs, spot_diffusivity
 
+    if grid.axisymmetric or grid.hopper is not None:
+        raise ValueError("grid: two-point statistics are implemented for rectangular "
+                         "Cartesian silos only (no axisymmetric grids, no hoppers)")
     rho_s = _check_inputs(grid, rho_s, kernel)
     p1, p2 = _as_point(grid, r1, "r1"), _as_point(grid, r2, "r2")
     D_s = spot_diffusivity(grid, spots, spot_diffusivity_tensor)

@@ -135,8 +135,12 @@ def spot_diffusivity(grid: Grid, spots: Spots, tensor: Mapping | None = None) ->
             grid arrays.
 
     Returns:
-        ``{"D_xx": ..., "D_xz": ..., ...}``: floats or grid arrays (``DIFFUSIVITY_KEYS``).
+        ``{"D_xx": ..., "D_xz": ..., ...}``: floats or grid arrays (``DIFFUSIVITY_KEYS``;
+        axisymmetric grids: ``D_rr``, ``D_rz``, ``D_zz``).
     """
+    if grid.axisymmetric:   # cylindrical components D_rr (= D_theta_theta), D_rz, D_zz
+        from ._axisymmetric import spot_tensor
+        return spot_tensor(grid, spots, tensor)
     keys = DIFFUSIVITY_KEYS[grid.dims]
     if tensor is not None:
         unknown = sorted(set(tensor) - set(keys))
@@ -485,11 +489,28 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
             kernel beyond a reflecting wall displaces nothing. Identical with open walls.
         mask: optional material indicator for ``phi`` (see ``_walls.coverage``).
 
+    Axisymmetric grids (3D kernel, ``rho_s`` per d**3; ``spotpde.fields._axisymmetric``)
+    and hoppers (the staircase ``grid.active``; ``_hopper``): docs/walls.md sections 8-9.
+
     Returns:
-        ``{"u_x", ["u_y",] "u_z", "D_xx", "D_xz", "D_zz", ["D_yy", "D_xy", "D_yz"]}``:
-        grid-shaped float64 arrays, ``u`` in d per unit time, ``D`` in d**2 per unit time.
+        ``{"u_x", ["u_y",] "u_z", "D_xx", "D_xz", "D_zz", ["D_yy", "D_xy", "D_yz"]}``
+        (``grid.drift_keys + grid.diffusivity_keys``: ``u_r, u_z, D_rr, D_rz, D_zz`` when
+        axisymmetric, ``D_theta_theta = D_rr``; zero on inactive cells): grid-shaped
+        float64 arrays, ``u`` in d per unit time, ``D`` in d**2 per unit time.
     """
     lam = _check_rule(rule)
+    if grid.axisymmetric or grid.hopper is not None:   # cylinders, cones, wedges
+        if diffusivity not in ("passage", "mean-field"):
+            raise ValueError(f"diffusivity: must be 'passage' or 'mean-field', got {diffusivity!r}")
+        if grid.axisymmetric:   # ring convolutions, 3D kernel
+            from ._axisymmetric import particle_fields as fields_of
+            rho_s = _check_inputs(grid, rho_s, None)
+        else:                   # a 2D wedge: the staircase grid.active is the silo
+            from ._hopper import particle_fields as fields_of
+            rho_s = _check_inputs(grid, rho_s, kernel)
+            _check_coefficient(grid, "spots.drift", spots.drift)
+        return fields_of(grid, rho_s, spots, kernel, lam, spot_diffusivity_tensor, diffusivity,
+                         walls, mask)
     rho_s = _check_inputs(grid, rho_s, kernel)
     _check_coefficient(grid, "spots.drift", spots.drift)
     D_s = spot_diffusivity(grid, spots, spot_diffusivity_tensor)
@@ -550,6 +571,9 @@ def flux_velocity(grid: Grid, fields: Mapping[str, np.ndarray]) -> dict[str, np.
     Returns:
         ``{"u_x", ["u_y",] "u_z"}`` in d per unit time.
     """
+    if grid.axisymmetric or grid.hopper is not None:   # cylindrical / staircase differences
+        from ._axisymmetric import flux_velocity as staircase_flux_velocity
+        return staircase_flux_velocity(grid, fields)
     div = divergence(grid, {k: fields[k] for k in DIFFUSIVITY_KEYS[grid.dims]})
     return {f"u_{a}": np.asarray(fields[f"u_{a}"], dtype=float) - div[a]
             for a in _COMPONENTS[grid.dims]}
@@ -568,4 +592,7 @@ def incompressibility_defect(grid: Grid, fields: Mapping[str, np.ndarray]) -> np
         grid-shaped array in 1 / unit time.
     """
     flux = flux_velocity(grid, fields)
+    if grid.axisymmetric or grid.hopper is not None:
+        from ._axisymmetric import velocity_divergence
+        return velocity_divergence(grid, flux)
     return sum(_gradient(grid, flux[f"u_{a}"], a) for a in _COMPONENTS[grid.dims])

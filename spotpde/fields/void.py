@@ -332,13 +332,20 @@ def void_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, V1: float,
         V1: particle volume carried per void (``V1 = V2``), d**dims.
         rule: ``lam``; the void model is ``1`` (kept as a parameter for comparisons).
 
+    Axisymmetric grids (``rho_s`` per d**3, ``V1`` in d**3) and hoppers: the same
+    fields in cylindrical components ``u_r, u_z, D_rr, D_rz, D_zz``, zero on inactive
+    cells (:func:`_staircase_void_fields`).
+
     Returns:
         Dict with ``u_x``, [``u_y``,] ``u_z`` (d per unit time) and ``D_xx``, ``D_xz``,
-        ``D_zz`` [, ``D_yy``, ``D_xy``, ``D_yz``] (d**2 per unit time), grid-shaped.
+        ``D_zz`` [, ``D_yy``, ``D_xy``, ``D_yz``] (d**2 per unit time), grid-shaped
+        (``grid.drift_keys + grid.diffusivity_keys``).
     """
     rho = np.asarray(rho_s, dtype=float)
     if rho.shape != grid.shape:
         raise ValueError(f"rho_s has shape {rho.shape}, grid has {grid.shape}")
+    if grid.axisymmetric or grid.hopper is not None:
+        return _staircase_void_fields(grid, rho, spots, V1, float(rule))
     h = grid.spacing
     v_s = np.broadcast_to(np.asarray(spots.drift, float), grid.shape)
     D_perp = np.broadcast_to(np.asarray(spots.D_perp, float), grid.shape)
@@ -360,6 +367,41 @@ def void_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, V1: float,
         out["D_xy"] = np.zeros(grid.shape)
         out["D_yz"] = np.zeros(grid.shape)
     return {k: np.ascontiguousarray(v, dtype=float) for k, v in out.items()}
+
+
+def _staircase_void_fields(grid: Grid, rho: np.ndarray, spots: Spots, V1: float,
+                           lam: float) -> dict[str, np.ndarray]:
+    """:func:`void_fields` on axisymmetric grids and in hoppers (``grid.active``).
+
+    The same local fields in cylindrical components (``rho_s`` per d**3, ``V1`` in d**3)::
+
+        u_r = 2 lam V1 d_r(rho_s D_perp),   u_z = -V1 (rho_s v_s - 2 lam d_z(rho_s D_par)),
+        D_rr = V1 rho_s D_perp (= D_theta_theta),   D_rz = 0,   D_zz = V1 rho_s D_par
+
+    (``(div(D_s rho_s))_r = d_r G_rr`` because ``G_theta_theta = G_rr``). Derivatives:
+    second-order differences with the even continuation across the axis (so ``u_r -> 0``
+    there) that never cross a wall face of the staircase (one-sided next to inactive
+    cells). Zero on inactive cells. A 2D wedge hopper gives ``u_x, u_z, D_xx, D_xz, D_zz``.
+    """
+    from ._axisymmetric import masked_derivative
+
+    h = grid.spacing
+    act = grid.active
+    rho = np.where(act, rho, 0.0)
+    v_s = np.broadcast_to(np.asarray(spots.drift, float), grid.shape)
+    Fh = rho * np.broadcast_to(np.asarray(spots.D_perp, float), grid.shape)
+    Fz = rho * np.broadcast_to(np.asarray(spots.D_par, float), grid.shape)
+    axi = grid.axisymmetric
+    h_key = "r" if axi else "x"
+    out = {
+        f"u_{h_key}": 2.0 * lam * V1 * masked_derivative(Fh, h, 1, act, even_axis=axi),
+        "u_z": -V1 * (rho * v_s - 2.0 * lam * masked_derivative(Fz, h, 0, act)),
+        f"D_{h_key}{h_key}": V1 * Fh,
+        f"D_{h_key}z": np.zeros(grid.shape),
+        "D_zz": V1 * Fz,
+    }
+    keys = grid.drift_keys + grid.diffusivity_keys
+    return {k: np.ascontiguousarray(np.where(act, out[k], 0.0), dtype=float) for k in keys}
 
 
 # ---------------------------------------------------------------------------------------
