@@ -218,3 +218,27 @@ def test_axisymmetric_field_names_are_checked():
     neg = dict(f, D_rr=-1.0)
     with pytest.raises(ValueError, match="fields.D_rr"):
         tracer.solve(g, neg, P0, 1.0, 2)
+
+
+def test_metric_keeps_the_cartesian_step_and_callable_fields_match():
+    """The metric exchange leaves each cell's loss rate at the Cartesian 2 (D_rr + D_zz)/h**2
+    (so the positivity step is unchanged; max dt a <= 1 in the run); time-dependent
+    (callable) fields and ``on_frame`` give the same physical frames as steady fields."""
+    from spotpde.tracer import _geometry
+    h = 0.5
+    g = _axi_grid(h, radius=4.0, z=(0.0, 8.0))
+    f = _converging_axi(g)
+    op = _geometry.operator(g, f, 6, np.ones(g.nx, dtype=bool), implicit=False)
+    assert op.rate_diff == pytest.approx(2 * (D + D) / h**2, rel=1e-12)
+    P0 = _blob_axi(g, z0=5.0, s0=0.8)
+    a = tracer.solve(g, f, P0, 4.0, 5, diffusion="explicit")
+    assert a.max_cfl <= 1.0
+    frames = {}
+    b = tracer.solve(g, lambda t: f, P0, 4.0, 5, diffusion="explicit",
+                     on_frame=lambda j, t, P: frames.__setitem__(j, P.copy()))
+    assert b.P is None and sorted(frames) == list(range(5))
+    for j in range(5):
+        np.testing.assert_allclose(frames[j], a.P[j], rtol=1e-12, atol=1e-14 * a.P[0].max())
+    np.testing.assert_allclose(b.P_height, a.P_height, rtol=1e-12, atol=1e-14)
+    with pytest.raises(ValueError, match=r"fields\(t=0\): missing u_r"):
+        tracer.solve(g, lambda t: {"u_z": 0.0}, P0, 1.0, 2)
