@@ -11,7 +11,12 @@ the script prints the times, the ratio (target <= 1/20) and the agreement of the
 interpolated at the 3D cell centres inside the cylinder). The steady solve
 (``t_end = inf``) of both grids is timed with ``--steady``.
 
-Run: ``python benchmarks/axisymmetric.py [--repeat N] [--h H] [--radius A] [--steady]``.
+``--hopper N``: instead, the cost per step of a 2D wedge hopper (30 degrees, ``N x N``
+cells; the staircase walls and the sparse diffusion) against the box of the same grid
+(the fused 2D kernel), same fields, same run.
+
+Run: ``python benchmarks/axisymmetric.py [--repeat N] [--h H] [--radius A] [--steady]
+[--hopper N]``.
 """
 
 from __future__ import annotations
@@ -23,7 +28,7 @@ from _timing import best_times
 from scipy.interpolate import RegularGridInterpolator
 
 from spotpde import tracer
-from spotpde.grid import Grid
+from spotpde.grid import Grid, Hopper
 
 D, ALPHA, W, Z0, S0 = 0.2, 0.05, 0.5, 8.0, 2.0
 
@@ -55,7 +60,11 @@ def main():
     ap.add_argument("--t-end", type=float, default=10.0)
     ap.add_argument("--steady", action="store_true",
                     help="also time the steady solves (the 3D one takes about a minute)")
+    ap.add_argument("--hopper", type=int, default=0,
+                    help="time a 2D wedge hopper of N x N cells against the box instead")
     args = ap.parse_args()
+    if args.hopper:
+        return hopper(args.hopper, args.repeat)
     ga, fa, Pa, g3, f3, P3 = problem(args.h, args.radius, args.top)
     out = {}
 
@@ -93,6 +102,33 @@ def main():
     l1 = np.abs(Pi - r3.P[-1][inside]).sum() / r3.P[-1].sum()
     print(f"agreement: max |mass_axi - mass_3d| = {np.abs(ra.mass - r3.mass).max():.2e}; "
           f"final P relative L1 = {l1:.2e}")
+
+
+def hopper(n, repeat):
+    """Seconds per step: a 30 degree wedge against the box of the same grid."""
+    h = 0.25
+    half = n * h / 2
+    times, steps = [], []
+    for hop in (None, Hopper(30.0, 0.0, 2.0)):
+        g = Grid(2, (-half, half), (0.0, n * h), h, hopper=hop)
+        Z, X = g.mesh()
+        f = {"u_x": -0.02 * X + 0 * Z, "u_z": -0.5 + 0 * X + 0 * Z, "D_xx": 0.05 + 0 * X * Z,
+             "D_xz": 0.0 * X * Z, "D_zz": 0.05 + 0 * X * Z}
+        P0 = np.where(g.active, np.exp(-(X**2 + (Z - 0.7 * n * h) ** 2) / 8.0), 0.0)
+        P0 /= P0.sum() * h * h
+        out = {}
+
+        def run(g=g, f=f, P0=P0, out=out):
+            out["r"] = tracer.solve(g, f, P0, 5.0, 2, diffusion="explicit")
+
+        times.append(run)
+        steps.append(out)
+    t_box, t_hop = best_times(times, repeat)
+    s_box, s_hop = steps[0]["r"].steps, steps[1]["r"].steps
+    print(f"{n} x {n} cells, t_end 5: box {t_box:.3f} s ({s_box} steps, "
+          f"{1e3 * t_box / s_box:.2f} ms a step), wedge {t_hop:.3f} s ({s_hop} steps, "
+          f"{1e3 * t_hop / s_hop:.2f} ms a step); per step wedge / box = "
+          f"{(t_hop / s_hop) / (t_box / s_box):.2f}")
 
 
 if __name__ == "__main__":

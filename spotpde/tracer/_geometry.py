@@ -176,8 +176,7 @@ class _Geometry:
                     keep = corner[a - 1]
                 a, b, alpha, beta = a[keep], b[keep], alpha[keep], beta[keep]
             ih2 = 1.0 / h**2
-            np.subtract.at(diag, a, alpha * ih2)
-            np.subtract.at(diag, b, beta * ih2)
+            diag -= np.bincount(a, alpha * ih2, n) + np.bincount(b, beta * ih2, n)
             rows += [a, b]
             cols += [b, a]
             vals += [beta * ih2, alpha * ih2]
