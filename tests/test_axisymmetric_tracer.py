@@ -88,7 +88,7 @@ def test_axisymmetric_equals_3d_cartesian_run():
     inside = rr < RADIUS - h
     Pi = it(np.stack([zz[inside], rr[inside]], axis=1))
     l1 = np.abs(Pi - r3.P[-1][inside]).sum() / r3.P[-1].sum()
-    assert l1 < 1e-2
+    assert l1 < 5e-3                       # measured 3.4e-3 (8.3e-4 at h = 0.25)
 
 
 def test_uniform_drift_spreads_as_gaussian():

@@ -108,10 +108,14 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
     """Evolve the tracer density ``P`` from ``P0`` over ``[0, t_end]``.
 
     Args:
-        grid: the grid (array order ``(z, x)`` / ``(z, y, x)``).
+        grid: the grid (array order ``(z, x)`` / ``(z, y, x)``; axisymmetric ``(z, r)``:
+            ``P``, ``P0`` per unit volume, ``mass = sum(P * grid.cell_volumes)``,
+            ``P_height`` per unit horizontal area; with a hopper the staircase
+            ``grid.active`` is walled and ``P0`` must vanish off it; docs/tracer.md).
         fields: dict of grid-shaped cell-centred arrays ``u_x``, [``u_y``,] ``u_z``
             (d per unit time) and ``D_xx``, ``D_xz``, ``D_zz`` (3D also ``D_yy``,
-            ``D_xy``, ``D_yz``; d**2 per unit time); scalars are broadcast. Or a
+            ``D_xy``, ``D_yz``; d**2 per unit time; axisymmetric ``u_r``, ``u_z``,
+            ``D_rr``, ``D_rz``, ``D_zz``); scalars are broadcast. Or a
             callable ``t -> dict`` for time-dependent coefficients (evaluated at the
             Runge-Kutta stage times).
         P0: grid-shaped initial density in 1/d**dims (not normalised here).

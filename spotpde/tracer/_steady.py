@@ -303,10 +303,14 @@ def solve_steady_public(grid, fields, P0, *, scheme: str = "hybrid",
     ``G >= 0``, exit probabilities summing to the initial mass.
 
     Args:
-        grid: the grid (array order ``(z, x)`` / ``(z, y, x)``).
+        grid: the grid (array order ``(z, x)`` / ``(z, y, x)``; axisymmetric ``(z, r)``
+            and hoppers as for :func:`spotpde.tracer.solve`: ``residence`` per unit
+            volume, ``P_height`` per unit horizontal area, ``mean_exit_time`` with
+            ``grid.cell_volumes``).
         fields: dict of steady cell-centred arrays (or scalars) ``u_x``, [``u_y``,]
             ``u_z`` (d per unit time), ``D_xx``, ``D_xz``, ``D_zz`` (3D also ``D_yy``,
-            ``D_xy``, ``D_yz``; d**2 per unit time), as for :func:`spotpde.tracer.solve`.
+            ``D_xy``, ``D_yz``; d**2 per unit time; axisymmetric ``u_r``, ``u_z``,
+            ``D_rr``, ``D_rz``, ``D_zz``), as for :func:`spotpde.tracer.solve`.
         P0: grid-shaped initial density, 1/d**dims, >= 0 (not normalised here).
         scheme: advective face value: ``"hybrid"`` (central where the cell Peclet
             number is <= 2, upwind elsewhere; default) or ``"upwind"``.
