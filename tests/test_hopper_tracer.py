@@ -10,7 +10,6 @@ refinement.
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import pytest

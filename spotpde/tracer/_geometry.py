@@ -30,7 +30,9 @@ Cartesian advection kernel, and this module supplies the geometry:
 
   i.e. the finite-volume flux of ``-d_r(A_r P)`` through the face area ``2 pi r_f h``
   (for ``D_tt = D_rr`` the hoop term cancels from ``J_r``). Its coefficients
-  ``A r_f / r >= 0`` keep the exchange positive, it is exact for a uniform ``P``, and a
+  ``A r_f / r >= 0`` keep the exchange positive, it keeps the equilibrium ``P = c / D``
+  of a drift-free isotropic ``D`` steady (the drift upwinded at the axis would put the
+  axis cell 18 % too high: the donor value ``Q_0`` where ``Q ~ r``), and a
   cell's loss rate ``(A / h**2)(r_{i+1/2} + r_{i-1/2}) / r_i = 2 A / h**2`` is the
   Cartesian one, so the time-step bound is unchanged. The second part (zero for the
   spot model's diagonal tensor) is an outward drift upwinded with ``u_r``;
