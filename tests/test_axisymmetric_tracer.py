@@ -110,7 +110,7 @@ def test_uniform_drift_spreads_as_gaussian():
         assert abs(res.mass[j] + res.outflow[j] - 1.0) < 1e-10
         assert res.P[j].min() >= 0.0
         # variance per horizontal component: <r**2>/2
-        assert (_r2(g, res.P[j]) - r2_0) / 2 == pytest.approx(2 * D * t, rel=1e-9, abs=1e-12)
+        assert (_r2(g, res.P[j]) - r2_0) / 2 == pytest.approx(2 * D * t, rel=1e-11, abs=1e-12)
     Z, R = g.mesh()
     s2 = s0**2 + 2 * D * t_end
     exact = np.exp(-(R**2 + (Z - z0 + W * t_end) ** 2) / (2 * s2)) / (2 * np.pi * s2) ** 1.5
@@ -128,7 +128,7 @@ def test_linear_converging_flow_second_moment_closed_form():
     ``m(t) = m(0) e^{-2 alpha t} + (2D / alpha)(1 - e^{-2 alpha t})`` for
     ``m = <r**2> - h**2/12`` (the cell offset of the reconstruction of Q); the residual
     error, from the nonlinear WENO weights and the reconstruction near the axis (measured
-    1.7e-4 at h = 0.5), at least halves when h is halved."""
+    1.7e-4 at h = 0.5, 3.6e-6 at h = 0.25), falls at least tenfold when h is halved."""
     errors = []
     for h in (0.5, 0.25):
         g = _axi_grid(h, z=(0.0, 20.0))
@@ -143,7 +143,7 @@ def test_linear_converging_flow_second_moment_closed_form():
             err = max(err, abs((_r2(g, res.P[j]) - h * h / 12) / exact - 1))
         errors.append(err)
     assert errors[0] < 3e-4
-    assert errors[1] < 0.5 * errors[0]
+    assert errors[1] < 0.1 * errors[0]
 
 
 B, Z0_VOID, SIGMA_VOID = 1.3, 20.0, 0.75
