@@ -46,9 +46,10 @@ and an inactive cell is a wall: face velocity 0 and no exchange across it; a dia
 active, so none reaches across a wall face. Inactive cells keep ``P = 0``; positivity
 and conservation hold as on a box (pairwise exchanges and face fluxes only).
 
-Diffusion is a sparse matrix (the exchanges above, built by :meth:`_Geometry.diffusion`)
-applied after the advection kernel, as in 3D; the steady solver and implicit diffusion
-use the same matrix. Derivation and measurements: docs/tracer.md, docs/steady.md.
+Diffusion: the exchanges above (built by :meth:`_Geometry.diffusion`) are added after the
+advection kernel by the face-coefficient kernel :func:`._geometry_kernels.exchange_2d`;
+the steady solver and implicit diffusion use the same exchanges as a sparse matrix.
+Derivation and measurements: docs/tracer.md, docs/steady.md.
 """
 
 from __future__ import annotations
@@ -60,6 +61,7 @@ import scipy.sparse as sp
 
 from . import _advection, _diffusion
 from . import _fp_kernels as K
+from . import _geometry_kernels as GK
 from ._operator import _check_fields, _Operator
 from ..grid import Grid
 
@@ -140,13 +142,18 @@ class _Geometry:
         """The exchange operator of the module docstring.
 
         Returns:
-            ``(terms, n_bad, L, Bz, axial)``: the tensor splitting of
+            ``(terms, n_bad, L, Bz, axial, coef)``: the tensor splitting of
             :func:`._diffusion.split_tensor`, the sparse operator ``L`` (``dQ/dt = L Q``,
             column sums 0, off-diagonals >= 0), ``Bz`` the map to the upward diffusive
             flux through every horizontal face (1/d per unit time, diagonal exchanges split
             half to each column, :func:`._diffusion.vertical_flux_operator`), and ``axial``
             the per-cell exchange coefficients a face's hybrid weight of the steady solve
-            may rely on (the smallest over the cell's radial faces, ``A r_f / r``).
+            may rely on (the smallest over the cell's radial faces, ``A r_f / r``), and
+            ``coef`` the same exchanges as face arrays for :func:`._geometry_kernels.exchange_2d`:
+            ``coef[offset] = (alpha, beta) / h**2`` with ``E = alpha P_a - beta P_b`` for
+            the pairs ``a, b = a + offset`` (shapes ``(nz, nx-1)`` for ``(0, 1)``,
+            ``(nz-1, nx)`` for ``(1, 0)``, ``(nz-1, nx-1)`` for the diagonals, ``(1, -1)``
+            indexed by the left column; 0 where blocked).
         """
         h = self.h
         nz, nx = shape = self.shape
@@ -160,6 +167,8 @@ class _Geometry:
         rows, cols, vals = [], [], []
         brows, bcols, bvals = [], [], []
         diag = np.zeros(n)
+        coef = {}
+        ih2 = 1.0 / h**2
         for off, A in terms:
             a, b, _ = _diffusion._pairs(shape, off)
             Af = A.ravel()
@@ -176,8 +185,13 @@ class _Geometry:
                     keep = corner[a]
                 else:                        # (1, -1): corner above-left of a
                     keep = corner[a - 1]
+            else:
+                keep = np.ones(a.shape, dtype=bool)
+            pshape = (nz - abs(off[0]), nx - abs(off[1]))
+            coef[off] = (np.where(keep, alpha * ih2, 0.0).reshape(pshape),
+                         np.where(keep, beta * ih2, 0.0).reshape(pshape))
+            if self.hopper:
                 a, b, alpha, beta = a[keep], b[keep], alpha[keep], beta[keep]
-            ih2 = 1.0 / h**2
             diag -= np.bincount(a, alpha * ih2, n) + np.bincount(b, beta * ih2, n)
             rows += [a, b]
             cols += [b, a]
@@ -206,7 +220,7 @@ class _Geometry:
         if self.axi:
             fac = np.where(np.arange(nx) == 0, 2.0, (r - 0.5 * h) / r)
             axial["x"] = axial["x"] * fac[None, :]
-        return terms, n_bad, L, Bz, axial
+        return terms, n_bad, L, Bz, axial, coef
 
     def check_P0(self, P: np.ndarray, name: str = "P0") -> None:
         """ValueError unless ``P`` vanishes on the inactive cells."""
@@ -218,7 +232,8 @@ class _Geometry:
 
 class _GeometryOperator(_Operator):
     """The tracer operator of ``Q`` for one coefficient snapshot (the attributes of
-    :class:`._operator._Operator`); diffusion by the sparse exchange matrix."""
+    :class:`._operator._Operator`); explicit diffusion by the exchange kernel, implicit
+    by the sparse exchange matrix."""
 
     def __init__(self, geometry: _Geometry, grid: Grid, fields: dict, limiter: int,
                  outlet: np.ndarray, implicit: bool, p_scale: float = 1.0):
@@ -229,7 +244,13 @@ class _GeometryOperator(_Operator):
         self.limiter = limiter
         self.implicit = implicit
         self.faces = geometry.faces(fields, outlet)
-        self.terms, self.n_bad, self._L, self._Bz, _ = geometry.diffusion(fields)
+        self.terms, self.n_bad, self._L, self._Bz, _, coef = geometry.diffusion(fields)
+        zx, zz, zd = (np.zeros((n, m)) for n, m in ((grid.nz, grid.nx - 1),
+                                                    (grid.nz - 1, grid.nx),
+                                                    (grid.nz - 1, grid.nx - 1)))
+        self.coef = [c for off, z in (((0, 1), zx), ((1, 0), zz), ((1, 1), zd), ((1, -1), zd))
+                     for c in coef.get(off, (z, z))]
+        self.has_diag = (1, 1) in coef or (1, -1) in coef
         a_adv = _advection.advective_rate(self.faces, h)
         a_diff = np.maximum(-self._L.diagonal().reshape(grid.shape), 0.0)
         self.rate_adv = float(a_adv.max())
@@ -244,16 +265,14 @@ class _GeometryOperator(_Operator):
 
     def rhs(self, P: np.ndarray, ws, w_acc: float, stage: tuple | None = None):
         """:func:`._operator._rhs` for this operator: the advection kernel, then the
-        sparse diffusion (as in 3D), then the Runge-Kutta stage combination."""
+        exchange kernel (explicit diffusion), then the Runge-Kutta stage combination."""
         h = self.h
         f = self.faces
         z = self.Axx
         K.rhs_2d_kernel(self.limiter)(P, f["x"], f["z"], z, z, z, False, self.eps, h, ws.R,
                                       ws.Fz_edge, ws.Fz_acc, w_acc, P, 0.0, 0.0, 1.0, 0.0)
         if not self.implicit and self.rate_diff > 0.0:
-            p = P.ravel()
-            ws.R += (self._L @ p).reshape(P.shape)
-            ws.Fz_acc += w_acc * (self._Bz @ p).reshape(ws.Fz_acc.shape)
+            GK.exchange_2d(P, *self.coef, self.has_diag, ws.R, ws.Fz_acc, w_acc, h)
         side = np.dot(f["x"][:, -1], P[:, -1]) - np.dot(f["x"][:, 0], P[:, 0])
         floor = -ws.Fz_edge[0].sum()
         top = ws.Fz_edge[1].sum()
@@ -315,7 +334,7 @@ def solve_steady(core, grid, fields, P, outlet, scheme):
     w = geo.weight
 
     def pieces(fc, out):
-        terms, n_bad, L, Bz, axial = geo.diffusion(fc)
+        terms, n_bad, L, Bz, axial, _ = geo.diffusion(fc)
         return geo.faces(fc, out), axial, L, Bz, n_bad
 
     res = core(geo.twin, fq, np.ascontiguousarray(P * w), outlet, scheme=scheme, pieces=pieces)
