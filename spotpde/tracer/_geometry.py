@@ -114,7 +114,10 @@ class _Geometry:
         return {_RENAME[k]: v for k, v in f.items()} if self.axi else f
 
     def _masked(self, v):
-        a = np.asarray(v, dtype=float)
+        try:
+            a = np.asarray(v, dtype=float)
+        except (TypeError, ValueError):
+            return v                    # left for _check_fields to report by name
         if a.ndim == 0:
             a = np.full(self.shape, float(a))
         return np.where(self.active, a, 0.0) if a.shape == self.shape else a
