@@ -7,6 +7,8 @@ tensor diffusion, SSP Runge-Kutta); :func:`numerical_diffusion` predicts the sch
 numerical diffusion and :func:`sde_ensemble` is the grid-free Euler-Maruyama reference.
 :func:`solve_steady` gives the time integral of ``P`` to infinity by one sparse solve
 (the geometrical propagator for ``tracer.t_end = inf``, docs/steady.md).
+Both work on axisymmetric grids (``Q = 2 pi r P`` stepped with the metric exchange) and
+in hoppers (the staircase ``grid.active`` walled), :mod:`._geometry`.
 Schemes and their properties: docs/tracer.md.
 """
 

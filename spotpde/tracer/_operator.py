@@ -40,7 +40,8 @@ def required_fields(dims: int) -> tuple[str, ...]:
 
 
 def _check_fields(grid: Grid, fields: Mapping[str, np.ndarray], where: str) -> dict:
-    """The coefficient arrays of :func:`required_fields` as contiguous float64 grid arrays.
+    """The coefficient arrays ``grid.drift_keys + grid.diffusivity_keys`` (those of
+    :func:`required_fields` on Cartesian grids) as contiguous float64 grid arrays.
 
     Scalars are broadcast. Raises ``ValueError`` listing every problem, each named
     ``{where}.{key}``: a wrong shape, NaN or infinite values, a negative diagonal ``D_ii``
@@ -48,7 +49,7 @@ def _check_fields(grid: Grid, fields: Mapping[str, np.ndarray], where: str) -> d
     """
     if not isinstance(fields, Mapping):
         raise ValueError(f"{where}: expected a dict of arrays, got {type(fields).__name__}")
-    names = required_fields(grid.dims)
+    names = grid.drift_keys + grid.diffusivity_keys    # required_fields(dims) if Cartesian
     missing = [n for n in names if n not in fields]
     if missing:
         raise ValueError(f"{where}: missing {', '.join(missing)} (needs {', '.join(names)})")
@@ -66,13 +67,13 @@ def _check_fields(grid: Grid, fields: Mapping[str, np.ndarray], where: str) -> d
             continue
         out[n] = np.ascontiguousarray(a)
     if not problems:
-        diag = [f"D_{c}{c}" for c in (("x", "z") if grid.dims == 2 else ("x", "y", "z"))]
+        diag = [k for k in grid.diffusivity_keys if k[2] == k[3]]
         for n in diag:
             if np.any(out[n] < 0):
                 problems.append(f"{where}.{n}: must be >= 0, min {out[n].min():.3g}")
         if not problems:
-            pairs = [("D_xx", "D_zz", "D_xz")] if grid.dims == 2 else [
-                ("D_xx", "D_yy", "D_xy"), ("D_xx", "D_zz", "D_xz"), ("D_yy", "D_zz", "D_yz")]
+            pairs = [(f"D_{k[2]}{k[2]}", f"D_{k[3]}{k[3]}", k)
+                     for k in grid.diffusivity_keys if k[2] != k[3]]
             for a, b, c in pairs:
                 bad = out[c] ** 2 > out[a] * out[b] * (1 + 1e-9) + 1e-300
                 if np.any(bad):
@@ -172,7 +173,8 @@ class _Workspace:
 
 def _rhs(op: _Operator, P: np.ndarray, ws: _Workspace, w_acc: float,
          stage: tuple | None = None) -> tuple[float, float, float]:
-    """Fill ``ws.R = dP/dt``, accumulate ``w_acc * Fz``.
+    """Fill ``ws.R = dP/dt``, accumulate ``w_acc * Fz`` (an operator with its own ``rhs``,
+    :class:`._geometry._GeometryOperator`, does it itself).
 
     With ``stage = (a, P0, dt, out)`` write the Runge-Kutta stage
     ``out = a P0 + (1 - a) (P + dt R)`` instead (values below ``ws.tiny`` set to 0); in 2D
@@ -181,6 +183,8 @@ def _rhs(op: _Operator, P: np.ndarray, ws: _Workspace, w_acc: float,
     Returns:
         Outflow rates (probability per unit time) through the floor, the sides, the top.
     """
+    if hasattr(op, "rhs"):
+        return op.rhs(P, ws, w_acc, stage)
     h = op.h
     f = op.faces
     if op.dims == 2:

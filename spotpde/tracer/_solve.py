@@ -44,7 +44,7 @@ from typing import Callable, Mapping, Union
 import numba
 import numpy as np
 
-from . import _advection, _timestepping
+from . import _advection, _geometry, _timestepping
 from ._operator import _check_fields, _Operator, _rhs, _Workspace, required_fields
 from ._stepping import (_AdaptiveStepper, _FixedStepper, _FrameTracker, _implicit_step,
                         _rk_step)
@@ -108,10 +108,14 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
     """Evolve the tracer density ``P`` from ``P0`` over ``[0, t_end]``.
 
     Args:
-        grid: the grid (array order ``(z, x)`` / ``(z, y, x)``).
+        grid: the grid (array order ``(z, x)`` / ``(z, y, x)``; axisymmetric ``(z, r)``:
+            ``P``, ``P0`` per unit volume, ``mass = sum(P * grid.cell_volumes)``,
+            ``P_height`` per unit horizontal area; with a hopper the staircase
+            ``grid.active`` is walled and ``P0`` must vanish off it; docs/tracer.md).
         fields: dict of grid-shaped cell-centred arrays ``u_x``, [``u_y``,] ``u_z``
             (d per unit time) and ``D_xx``, ``D_xz``, ``D_zz`` (3D also ``D_yy``,
-            ``D_xy``, ``D_yz``; d**2 per unit time); scalars are broadcast. Or a
+            ``D_xy``, ``D_yz``; d**2 per unit time; axisymmetric ``u_r``, ``u_z``,
+            ``D_rr``, ``D_rz``, ``D_zz``); scalars are broadcast. Or a
             callable ``t -> dict`` for time-dependent coefficients (evaluated at the
             Runge-Kutta stage times).
         P0: grid-shaped initial density in 1/d**dims (not normalised here).
@@ -186,6 +190,9 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
     saved = numba.get_num_threads()
     numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
     try:
+        if _geometry.special(grid):     # axisymmetric or hopper: Q = 2 pi r P on the twin
+            return _geometry.solve(_solve, grid, fields, P, t_end, frames, progress, lim,
+                                   scheme, diffusion, cfl, outlet, check_mass, on_frame)
         return _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl,
                       outlet, check_mass, on_frame)
     finally:
@@ -193,8 +200,9 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
 
 
 def _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl, outlet,
-           check_mass, on_frame=None):
-    """Core of :func:`solve` (inputs checked): the operators, then the frames.
+           check_mass, on_frame=None, make_op=_Operator):
+    """Core of :func:`solve` (inputs checked): the operators (built by ``make_op``, the
+    signature of :class:`._operator._Operator`), then the frames.
 
     Steady fields use the fixed-step driver, time-dependent ones the adaptive one
     (:mod:`._stepping`); the frame tracker keeps the frames and checks the mass budget.
@@ -203,18 +211,18 @@ def _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl
     get = (lambda t: fields) if steady else fields
     f0 = _check_fields(grid, get(0.0), "fields")
     p_scale = float(P.max()) if P.size else 1.0
-    op0 = _Operator(grid, f0, lim.code, outlet, implicit=False, p_scale=p_scale)
+    op0 = make_op(grid, f0, lim.code, outlet, implicit=False, p_scale=p_scale)
     if diffusion == "auto":
         # time-dependent fields: judge by the start and the end (a flow that starts
         # from rest has no coefficients at t = 0)
         probes = [op0] if steady else [
-            op0, _Operator(grid, _check_fields(grid, get(float(t_end)), f"fields(t={t_end:g})"),
+            op0, make_op(grid, _check_fields(grid, get(float(t_end)), f"fields(t={t_end:g})"),
                            lim.code, outlet, implicit=False, p_scale=p_scale)]
         implicit = any(o.rate_explicit > 2.0 * o.rate_adv and o.rate_diff > 0 for o in probes)
     else:
         implicit = diffusion == "implicit"
     if implicit:
-        op0 = _Operator(grid, f0, lim.code, outlet, implicit=True, p_scale=p_scale)
+        op0 = make_op(grid, f0, lim.code, outlet, implicit=True, p_scale=p_scale)
     if op0.n_bad:
         warnings.warn(f"tracer: D_p is not diagonally dominant in {op0.n_bad} cells "
                       "(|D_xz| > min(D_xx, D_zz)); the 9-point diffusion stencil is then "
@@ -227,7 +235,7 @@ def _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl
             return op0
         o = cache.get(t)
         if o is None:
-            o = _Operator(grid, _check_fields(grid, get(t), f"fields(t={t:g})"), lim.code,
+            o = make_op(grid, _check_fields(grid, get(t), f"fields(t={t:g})"), lim.code,
                           outlet, implicit, p_scale)
             if len(cache) > 4:        # a step's stages and the next step's start
                 cache.pop(min(cache))

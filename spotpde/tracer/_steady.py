@@ -206,19 +206,30 @@ def _krylov(M, b, rtol=1e-12):
     return g, "gmres+spilu"
 
 
-def solve_steady(grid, f, P0, outlet, *, scheme="hybrid", permc_spec="MMD_AT_PLUS_A"):
-    """Core of :func:`spotpde.tracer.solve_steady` (inputs already checked)."""
+def solve_steady(grid, f, P0, outlet, *, scheme="hybrid", permc_spec="MMD_AT_PLUS_A",
+                 pieces=None):
+    """Core of :func:`spotpde.tracer.solve_steady` (inputs already checked).
+
+    ``pieces(f, outlet) -> (faces, axial, L, Bz, n_bad)`` replaces the Cartesian face
+    velocities, axial coefficients, diffusion operator and its vertical flux map
+    (axisymmetric metric and hopper walls, :mod:`._geometry`).
+    """
     t0 = time.perf_counter()
     h = grid.spacing
     hv = grid.cell_volume
-    faces = _advection.face_velocities(f, grid.walls, outlet)
-    terms, n_bad = _diffusion.split_tensor(f, grid.dims)
-    axial = {}
-    for name in _AXES[grid.dims]:
-        off = tuple(1 if a == name else 0 for a in _AXES[grid.dims])
-        axial[name] = next((A for o, A in terms if o == off), np.zeros(grid.shape))
+    if pieces is None:
+        faces = _advection.face_velocities(f, grid.walls, outlet)
+        terms, n_bad = _diffusion.split_tensor(f, grid.dims)
+        axial = {}
+        for name in _AXES[grid.dims]:
+            off = tuple(1 if a == name else 0 for a in _AXES[grid.dims])
+            axial[name] = next((A for o, A in terms if o == off), np.zeros(grid.shape))
+        L = _diffusion.operator(terms, grid.shape, h)
+        Bz = _diffusion.vertical_flux_operator(terms, grid.shape, h) if terms else None
+    else:
+        faces, axial, L, Bz, n_bad = pieces(f, outlet)
     asm = _Assembly(grid, faces, axial, scheme)
-    A = asm.matrix() + _diffusion.operator(terms, grid.shape, h)
+    A = asm.matrix() + L
     M_full = (-A).tocsr()
     b_full = np.ascontiguousarray(P0, dtype=float).ravel()
     mass0 = float(b_full.sum()) * hv
@@ -263,8 +274,7 @@ def solve_steady(grid, f, P0, outlet, *, scheme="hybrid", permc_spec="MMD_AT_PLU
         float(b_full.max()), 1e-300)
     trapped = float(-(M_full[traps] @ g_full).sum()) * hv if traps.any() else 0.0
     Fz = asm.z_fluxes(G)
-    if terms:
-        Bz = _diffusion.vertical_flux_operator(terms, grid.shape, h)
+    if Bz is not None:
         Fz = Fz + (Bz @ g_full).reshape(Fz.shape)
     down = -Fz
     ex = asm.exits(G)
@@ -293,10 +303,14 @@ def solve_steady_public(grid, fields, P0, *, scheme: str = "hybrid",
     ``G >= 0``, exit probabilities summing to the initial mass.
 
     Args:
-        grid: the grid (array order ``(z, x)`` / ``(z, y, x)``).
+        grid: the grid (array order ``(z, x)`` / ``(z, y, x)``; axisymmetric ``(z, r)``
+            and hoppers as for :func:`spotpde.tracer.solve`: ``residence`` per unit
+            volume, ``P_height`` per unit horizontal area, ``mean_exit_time`` with
+            ``grid.cell_volumes``).
         fields: dict of steady cell-centred arrays (or scalars) ``u_x``, [``u_y``,]
             ``u_z`` (d per unit time), ``D_xx``, ``D_xz``, ``D_zz`` (3D also ``D_yy``,
-            ``D_xy``, ``D_yz``; d**2 per unit time), as for :func:`spotpde.tracer.solve`.
+            ``D_xy``, ``D_yz``; d**2 per unit time; axisymmetric ``u_r``, ``u_z``,
+            ``D_rr``, ``D_rz``, ``D_zz``), as for :func:`spotpde.tracer.solve`.
         P0: grid-shaped initial density, 1/d**dims, >= 0 (not normalised here).
         scheme: advective face value: ``"hybrid"`` (central where the cell Peclet
             number is <= 2, upwind elsewhere; default) or ``"upwind"``.
@@ -330,5 +344,8 @@ def solve_steady_public(grid, fields, P0, *, scheme: str = "hybrid",
         if outlet.shape != grid.shape[1:]:
             raise ValueError(f"solve_steady: outlet has shape {outlet.shape}, the floor "
                              f"{grid.shape[1:]}")
+    if grid.axisymmetric or grid.hopper is not None:   # Q = 2 pi r P on the Cartesian twin
+        from . import _geometry
+        return _geometry.solve_steady(solve_steady, grid, fields, P, outlet, scheme)
     f = _check_fields(grid, fields, "fields")
     return solve_steady(grid, f, P, outlet, scheme=scheme)
