@@ -58,7 +58,8 @@ def tracer_steps(grid, fields, t_end: float, frames: int, *, limiter: str = "wen
         ValueError: ``t_end``, ``frames`` or ``cfl`` out of range.
     """
     from ..tracer import _advection
-    from ..tracer._solve import _check_fields, _Operator
+    from ..tracer._geometry import operator
+    from ..tracer._solve import _check_fields
     if not (math.isfinite(t_end) and t_end > 0):
         raise ValueError(f"t_end: must be finite and > 0, got {t_end!r}")
     if not (isinstance(frames, (int, np.integer)) and frames >= 2):
@@ -67,7 +68,8 @@ def tracer_steps(grid, fields, t_end: float, frames: int, *, limiter: str = "wen
         raise ValueError(f"cfl: must be in (0, 1], got {cfl!r}")
     f = _check_fields(grid, fields, "fields")
     lim = _advection.limiter_from_name(limiter)
-    op = _Operator(grid, f, lim.code, np.ones(grid.shape[1:], dtype=bool), implicit=False)
+    # any grid: axisymmetric and hopper operators step Q = 2 pi r P on a Cartesian twin
+    op = operator(grid, f, lim.code, np.ones(grid.shape[1:], dtype=bool), implicit=False)
     if diffusion == "auto":
         implicit = op.rate_explicit > 2.0 * op.rate_adv and op.rate_diff > 0
     else:
