@@ -193,7 +193,7 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
         "diffusivity": case.diffusivity,
         "model": case.model,
         "dims": int(grid.dims),
-        "coordinates": grid.coordinates,
+        "coordinate_system": grid.coordinates,   # ("coordinates" is reserved by CF)
         "spotpde_version": __version__,
         "case": case.to_toml(),
     }
