@@ -44,7 +44,7 @@ from typing import Callable, Mapping, Union
 import numba
 import numpy as np
 
-from . import _advection, _timestepping
+from . import _advection, _implicit, _timestepping
 from ._operator import _check_fields, _Operator, _rhs, _Workspace, required_fields
 from ._stepping import (_AdaptiveStepper, _FixedStepper, _FrameTracker, _implicit_step,
                         _rk_step)
@@ -57,6 +57,9 @@ __all__ = ["DIFFUSION_MODES", "Fields", "TracerResult", "required_fields", "solv
 Fields = Union[Mapping[str, np.ndarray], Callable[[float], Mapping[str, np.ndarray]]]
 
 DIFFUSION_MODES = ("auto", "explicit", "implicit")
+#: ``stepping="auto"`` steps implicitly beyond this many explicit steps (steady fields)
+AUTO_IMPLICIT_STEPS = 200_000
+STEPPING_MODES = ("explicit", "imex", "implicit", "auto")
 
 
 @dataclass
@@ -104,7 +107,8 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
           time_scheme: str = "ssprk3", diffusion: str = "auto", cfl: float = 0.9,
           outlet: np.ndarray | None = None, check_mass: float = 1e-9,
           threads: int | None = None,
-          on_frame: Callable[[int, float, np.ndarray], None] | None = None) -> TracerResult:
+          on_frame: Callable[[int, float, np.ndarray], None] | None = None,
+          stepping: str = "explicit", tol: float = 1e-5, split: float = 20.0) -> TracerResult:
     """Evolve the tracer density ``P`` from ``P0`` over ``[0, t_end]``.
 
     Args:
@@ -138,6 +142,14 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
             is ``P0``) after its checks passed; the frames are then *not* kept
             (``TracerResult.P`` is ``None``), so memory does not grow with ``frames``.
             ``P`` is the solver's working array: copy or write it out, do not keep it.
+        stepping: ``"explicit"`` (default: SSP Runge-Kutta at the positivity limit),
+            ``"implicit"`` (steady fields only: adaptive TR-BDF2 on the linear hybrid
+            M-matrix operator of :func:`solve_steady`, step sizes set by ``tol``, not by
+            the CFL limit; ``limiter``, ``time_scheme``, ``diffusion``, ``cfl`` and
+            ``threads`` are then unused; docs/tracer.md) or ``"auto"``: implicit for
+            steady fields when the explicit run would take more than
+            ``AUTO_IMPLICIT_STEPS`` steps, else explicit.
+        tol: local error per implicit step, L1 relative to the initial mass (> 0).
 
     Returns:
         :class:`TracerResult`.
@@ -155,6 +167,15 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
         problems.append(f"t_end: must be a finite number > 0, got {t_end!r}")
     if not (0 < cfl <= 1):
         problems.append(f"cfl: must be in (0, 1], got {cfl!r}")
+    if stepping not in STEPPING_MODES:
+        problems.append(f"stepping: unknown mode {stepping!r}; valid choices: "
+                        f"{', '.join(STEPPING_MODES)}")
+    elif stepping in ("implicit", "imex") and callable(fields):
+        problems.append(f"stepping: {stepping!r} needs steady fields (a dict), got a callable")
+    if not (isinstance(split, (int, float)) and split >= 1):
+        problems.append(f"split: must be a number >= 1, got {split!r}")
+    if not (isinstance(tol, (int, float)) and 0 < tol < 1):
+        problems.append(f"tol: must be in (0, 1), got {tol!r}")
     if diffusion not in DIFFUSION_MODES:
         problems.append(f"diffusion: unknown mode {diffusion!r}; valid choices: "
                         f"{', '.join(DIFFUSION_MODES)}")
@@ -187,13 +208,13 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
     numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
     try:
         return _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl,
-                      outlet, check_mass, on_frame)
+                      outlet, check_mass, on_frame, stepping, tol, split)
     finally:
         numba.set_num_threads(saved)
 
 
 def _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl, outlet,
-           check_mass, on_frame=None):
+           check_mass, on_frame=None, stepping="explicit", tol=1e-5, split=20.0):
     """Core of :func:`solve` (inputs checked): the operators, then the frames.
 
     Steady fields use the fixed-step driver, time-dependent ones the adaptive one
@@ -236,6 +257,21 @@ def _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl
 
     interval = t_end / (frames - 1)
     est_steps = max(1, math.ceil(interval * op0.rate / cfl)) * (frames - 1)
+    if stepping == "implicit" or (stepping == "auto" and steady
+                                  and est_steps > AUTO_IMPLICIT_STEPS):
+        tracker = _FrameTracker(grid, P, t_end, frames, on_frame, progress, check_mass,
+                                every=1)
+        return _implicit.result(TracerResult, grid, f0, P, outlet, interval, frames,
+                                tracker, tol=tol, dt0=cfl / op0.rate_explicit,
+                                rate=op0.rate_explicit, umax=op0.umax)
+    if stepping == "imex":
+        op = _Operator(grid, f0, lim.code, outlet, implicit=True, p_scale=p_scale)
+        ws = _Workspace(grid, p_scale)
+        tracker = _FrameTracker(grid, P, t_end, frames, on_frame, progress, check_mass,
+                                every=max(1, int(est_steps / split) // 200))
+        return _implicit.imex_result(TracerResult, grid, f0, P, outlet, interval, frames,
+                                     tracker, op=op, scheme=scheme, ws=ws, split=split,
+                                     cfl=cfl)
     ws = _Workspace(grid, p_scale)
     tracker = _FrameTracker(grid, P, t_end, frames, on_frame, progress, check_mass,
                             every=max(1, est_steps // 200))
@@ -257,5 +293,6 @@ def _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl
         mass_error=tracker.mass_error,
         outflow_by_boundary={"floor": budget[0], "sides": budget[1], "top": budget[2]},
         options={"limiter": lim.name, "time_scheme": scheme.name,
-                 "diffusion": "implicit" if implicit else "explicit", "cfl": cfl},
+                 "diffusion": "implicit" if implicit else "explicit", "cfl": cfl,
+                 "stepping": "explicit"},
     )

@@ -1,0 +1,371 @@
+"""Implicit time stepping of the tracer equation on the linear M-matrix operator (private).
+
+For steady coefficient fields the explicit solver's step is capped by the fastest cell
+(next to a point orifice: ``dt ~ 0.05`` for the void propagator at ``h = d/4``) while the
+slow flow far up sets ``t_end`` (``4e5``: 7.3e6 steps). Here the semi-discrete equation
+
+    dP/dt = A P
+
+with ``A`` the linear hybrid central/upwind finite-volume operator of
+:mod:`spotpde.tracer._steady` (the same boundaries, the positive diffusion splitting;
+``-A`` has a positive diagonal, non-positive off-diagonals and column sums equal to the
+boundary outflow rates) is integrated by TR-BDF2 (:class:`TRBDF2`) with step sizes set
+by an embedded local error estimate, not by the CFL limit. Both implicit stages use the
+same matrix ``I - d dt A``, factorised once per step size (SuperLU) and reused; step
+sizes are ``interval / 2**k`` (``interval`` the frame interval), so frames are hit
+exactly and only a few factorisations are needed.
+
+Properties:
+
+* conservation: every stage is a difference of face fluxes, so
+  ``P_{n+1} = P_n + A (dt sum_i b_i Y_i)``; the running integral ``S = int P dt``
+  (``sum_i b_i dt Y_i`` per step) gives the outflow through floor, sides and top and
+  ``P_height`` (the z-face fluxes of ``S``), so ``mass + outflow = mass0`` to round-off;
+* positivity: ``I - tau A`` is an M-matrix for every ``tau > 0`` (``(I - tau A)^-1 >= 0``),
+  so backward Euler is positive for any step. TR-BDF2 is not unconditionally positive
+  (no linear method above first order is: Bolley & Crouzeix 1978); a step with a value
+  below ``-1e-13 max(P0)`` is redone by backward Euler with the same ``dt`` (counted in
+  ``options["fallback_steps"]``), so ``P >= 0`` up to solver round-off;
+* the drained limit: ``S -> G`` of :func:`spotpde.tracer.solve_steady` (``P_N = P_0 + A S``
+  exactly), so ``P_height`` converges to the steady solve's as the mass drains.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from . import _advection, _diffusion
+from ._steady import _AXES, _Assembly
+from ..errors import NumericalError
+
+
+class TRBDF2:
+    """TR-BDF2, an L-stable, stiffly accurate ESDIRK method of order 2 with an embedded
+    order-3 companion for the local error estimate.
+
+    With ``gamma = 2 - sqrt 2``, ``d = gamma / 2``, ``w = sqrt 2 / 4``, the stages of
+    ``dP/dt = A P`` are ``Y1 = P_n``,
+
+        (I - d dt A) Y2 = Y1 + d dt A Y1                  (trapezoidal rule to t + gamma dt)
+        (I - d dt A) Y3 = Y1 + w dt A (Y1 + Y2),          P_{n+1} = Y3   (BDF2 to t + dt)
+
+    i.e. Butcher weights ``b = (w, w, d)``, ``c = (0, gamma, 1)``; the companion weights
+    ``b_hat = ((1 - w)/3, (3 w + 1)/3, d/3)`` give the error estimate
+    ``e = (I - d dt A)^-1 dt A sum_i (b_i - b_hat_i) Y_i`` (filtered as Shampine's, so it
+    stays bounded on stiff components). Local error ``O(dt**3)``.
+    """
+
+    name = "trbdf2"
+    order = 2
+    stages = 3
+    gamma = 2.0 - math.sqrt(2.0)
+    d = 1.0 - 1.0 / math.sqrt(2.0)
+    w = math.sqrt(2.0) / 4.0
+    b = (w, w, d)
+    c = (0.0, gamma, 1.0)
+    b_hat = ((1.0 - w) / 3.0, (3.0 * w + 1.0) / 3.0, d / 3.0)
+    l_stable = True
+    unconditionally_positive = False    # safeguarded by a backward-Euler redo
+    reference = ("Bank et al. 1985, IEEE Trans. CAD 4, 436; Hosea & Shampine 1996, "
+                 "Appl. Numer. Math. 20, 21")
+
+
+def build_operator(grid, f, outlet, scheme="hybrid"):
+    """The linear operator ``A`` (CSC, 1/time), its assembly (face fluxes, exits) and the
+    diffusive z-face flux map ``Bz`` (or ``None``) for the fields ``f`` (checked)."""
+    faces = _advection.face_velocities(f, grid.walls, outlet)
+    terms, n_bad = _diffusion.split_tensor(f, grid.dims)
+    axial = {}
+    for name in _AXES[grid.dims]:
+        off = tuple(1 if a == name else 0 for a in _AXES[grid.dims])
+        axial[name] = next((A for o, A in terms if o == off), np.zeros(grid.shape))
+    asm = _Assembly(grid, faces, axial, scheme)
+    A = (asm.matrix() + _diffusion.operator(terms, grid.shape, grid.spacing)).tocsc()
+    Bz = _diffusion.vertical_flux_operator(terms, grid.shape, grid.spacing) if terms else None
+    return A, asm, Bz, n_bad
+
+
+class _Factors:
+    """SuperLU factors of ``I - tau A``, one per ``tau`` (kept: the step sizes form a
+    short ladder)."""
+
+    def __init__(self, A):
+        self.A = A
+        self.I = sp.identity(A.shape[0], format="csc")
+        self.lu = {}
+        self.seconds = 0.0
+
+    def solve(self, tau, rhs):
+        lu = self.lu.get(tau)
+        if lu is None:
+            t0 = time.perf_counter()
+            lu = spla.splu((self.I - tau * self.A).tocsc(), permc_spec="MMD_AT_PLUS_A")
+            self.seconds += time.perf_counter() - t0
+            self.lu[tau] = lu
+        return lu.solve(rhs)
+
+
+class ImplicitStepper:
+    """Adaptive TR-BDF2 on the M-matrix operator (module docstring).
+
+    Args:
+        A: sparse operator (``dP/dt = A P``), CSC.
+        interval: frame interval (time).
+        tol: accepted local error per step: L1 norm of the estimate relative to the
+            initial mass.
+        dt0: first step tried (time), rounded down to ``interval / 2**k``.
+        hv: cell volume (d**dims).
+        mass0: initial probability.
+        p_max: ``max(P0)`` (for the positivity threshold).
+    """
+
+    KMAX = 50
+
+    def __init__(self, A, interval, tol, dt0, hv, mass0, p_max):
+        self.A = A
+        self.fac = _Factors(A)
+        self.interval = interval
+        self.tol = tol
+        self.hv = hv
+        self.mass0 = max(mass0, 1e-300)
+        self.neg = 1e-13 * max(p_max, 1e-300)
+        self.k = min(self.KMAX, max(0, math.ceil(math.log2(interval / dt0))))
+        self.S = np.zeros(A.shape[0])       # int_0^t P dt
+        self.steps = 0
+        self.rejected = 0
+        self.fallback = 0
+        self.max_dt = 0.0
+        self.min_dt = math.inf
+
+    def _step(self, P, AP, dt):
+        s = TRBDF2
+        Y2 = self.fac.solve(s.d * dt, P + s.d * dt * AP)
+        AY2 = self.A @ Y2
+        Y3 = self.fac.solve(s.d * dt, P + s.w * dt * (AP + AY2))
+        AY3 = self.A @ Y3
+        db = [bi - bh for bi, bh in zip(s.b, s.b_hat)]
+        e = self.fac.solve(s.d * dt, dt * (db[0] * AP + db[1] * AY2 + db[2] * AY3))
+        err = float(np.abs(e).sum()) * self.hv / self.mass0
+        return Y3, AY3, dt * (s.w * (P + Y2) + s.d * Y3), err
+
+    def advance_to(self, P, tick):
+        """Advance ``P`` (flat) by one frame interval; returns the new ``P``."""
+        KMAX = self.KMAX
+        unit = 2 ** KMAX                     # the interval in units of interval / 2**KMAX
+        pos = 0
+        AP = self.A @ P
+        while pos < unit:
+            k = self.k
+            dt = self.interval / 2 ** k
+            Pn, APn, dS, err = self._step(P, AP, dt)
+            if err > self.tol and k < KMAX:
+                self.rejected += 1
+                shrink = max(1, math.ceil(math.log2((err / self.tol) ** (1.0 / 3.0) / 0.9)))
+                self.k = min(KMAX, k + shrink)
+                continue
+            if Pn.min() < -self.neg:
+                # TR-BDF2 is not unconditionally positive: backward Euler, same dt
+                self.fallback += 1
+                Pn = self.fac.solve(dt, P)
+                APn = self.A @ Pn
+                dS = dt * Pn
+            if not np.all(np.isfinite(Pn)):
+                raise NumericalError(f"tracer (implicit): P became NaN after {self.steps} steps")
+            P, AP = Pn, APn
+            self.S += dS
+            pos += 2 ** (KMAX - k)
+            self.steps += 1
+            self.max_dt = max(self.max_dt, dt)
+            self.min_dt = min(self.min_dt, dt)
+            tick(self.steps)
+            # next step: grow by powers of 2 the error allows, aligned with the position
+            grow = (0.9 * (self.tol / max(err, 1e-300)) ** (1.0 / 3.0))
+            up = int(math.floor(math.log2(grow))) if grow >= 2.0 else 0
+            up = min(up, 2)
+            knew = k - up
+            while knew < k and (knew < 0 or pos % 2 ** (KMAX - knew)):
+                knew += 1
+            self.k = knew
+        # start the next interval with the same dt
+        return P
+
+
+def run(grid, f, P, outlet, interval, frames, tracker, *, tol, dt0):
+    """Step ``P`` through the frames with :class:`ImplicitStepper`; the frames go to
+    ``tracker`` (:class:`spotpde.tracer._stepping._FrameTracker`).
+
+    Returns:
+        ``(stepper, P_height_faces, budget, info)``: the stepper (statistics), the
+        time-integrated downward z-face flux ``(nz+1, ...)``, the outflow through floor,
+        sides, top, and a dict of options for the result.
+    """
+    t0 = time.perf_counter()
+    A, asm, Bz, n_bad = build_operator(grid, f, outlet)
+    hv = grid.cell_volume
+    shape = grid.shape
+    stepper = ImplicitStepper(A, interval, tol, dt0, hv, tracker.mass0, float(P.max()))
+    p = P.ravel().copy()
+
+    def exits():
+        ex = asm.exits(stepper.S.reshape(shape))
+        return [ex["floor"], ex["sides"], ex["top"]]
+
+    for j in range(1, frames):
+        p = stepper.advance_to(p, lambda n: tracker.tick(n, tracker.times[j - 1]))
+        budget = exits()
+        tracker.record(j, float(tracker.times[j]), p.reshape(shape), budget, 0.0)
+    S = stepper.S.reshape(shape)
+    Fz = asm.z_fluxes(S)
+    if Bz is not None:
+        Fz = Fz + (Bz @ stepper.S).reshape(Fz.shape)
+    info = {"time_scheme": TRBDF2.name, "stepping": "implicit", "limiter": "hybrid",
+            "diffusion": "implicit", "tol": tol, "rejected_steps": stepper.rejected,
+            "fallback_steps": stepper.fallback, "factorisations": len(stepper.fac.lu),
+            "seconds_factorisation": stepper.fac.seconds, "dt_min": stepper.min_dt,
+            "dt_max": stepper.max_dt, "n_bad": n_bad,
+            "seconds": time.perf_counter() - t0}
+    return stepper, -Fz, exits(), info
+
+
+def result(result_cls, grid, f, P, outlet, interval, frames, tracker, *, tol, dt0, rate,
+           umax):
+    """:func:`run` packed as a :class:`spotpde.tracer.TracerResult` (``result_cls``);
+    ``rate`` and ``umax`` (the explicit positivity rate and the largest speed) give
+    ``max_cfl = max(dt) rate`` and ``max_courant``, here well above 1."""
+    stepper, faces, budget, info = run(grid, f, P, outlet, interval, frames, tracker,
+                                       tol=tol, dt0=dt0)
+    return result_cls(
+        times=tracker.times, P=tracker.P, mass=tracker.mass, outflow=tracker.outflow,
+        P_height=0.5 * (faces[:-1] + faces[1:]), P_height_faces=faces,
+        steps=stepper.steps, max_cfl=stepper.max_dt * rate,
+        max_courant=stepper.max_dt * umax / grid.spacing, mass_error=tracker.mass_error,
+        outflow_by_boundary={"floor": budget[0], "sides": budget[1], "top": budget[2]},
+        options=info)
+
+
+# ---------------------------------------------------------------------------------------
+# IMEX: explicit WENO5 / SSP-RK3 on the slow cells, implicit on the fast ones
+
+
+def split_faces(faces, fast):
+    """Split the face velocities into the explicit ones (faces of two slow cells) and the
+    implicit ones (faces touching a cell of ``fast``, boundary faces of fast cells)."""
+    explicit, implicit = {}, {}
+    names = ["z", "y", "x"] if len(faces) == 3 else ["z", "x"]
+    for axis, name in enumerate(names):
+        f = faces[name]
+        n = f.shape[axis] - 1
+        pad = [(0, 0)] * f.ndim
+        pad[axis] = (1, 1)
+        fp = np.pad(fast, pad, constant_values=False)   # ghost cells are slow
+        sl = lambda a, b: tuple(slice(a, b) if d == axis else slice(None) for d in range(f.ndim))
+        touch = fp[sl(0, n + 1)] | fp[sl(1, n + 2)]
+        explicit[name] = np.ascontiguousarray(np.where(touch, 0.0, f))
+        implicit[name] = np.where(touch, f, 0.0)
+    return explicit, implicit
+
+
+class ImexSplit:
+    """The implicit half of the IMEX step: ``A_I`` = hybrid advection through the faces
+    of the fast cells plus the whole diffusion operator; backward Euler
+    ``(I - tau A_I) P_new = P`` (an M-matrix: positive for every ``tau``), its time
+    integral ``S`` kept for the fluxes (``P_height``, outflow)."""
+
+    def __init__(self, grid, f, faces_implicit):
+        terms, self.n_bad = _diffusion.split_tensor(f, grid.dims)
+        axial = {}
+        for name in _AXES[grid.dims]:
+            off = tuple(1 if a == name else 0 for a in _AXES[grid.dims])
+            axial[name] = next((A for o, A in terms if o == off), np.zeros(grid.shape))
+        self.asm = _Assembly(grid, faces_implicit, axial, "hybrid")
+        self.A = (self.asm.matrix() + _diffusion.operator(terms, grid.shape, grid.spacing)).tocsc()
+        self.Bz = _diffusion.vertical_flux_operator(terms, grid.shape, grid.spacing) \
+            if terms else None
+        self.fac = _Factors(self.A)
+        self.S = np.zeros(self.A.shape[0])
+        self.shape = grid.shape
+
+    extrapolate = True
+    theta_min = 1.0
+    eps = 0.0
+
+    def backward_euler(self, P, tau):
+        p = P.ravel()
+        if not self.extrapolate:
+            Pn = self.fac.solve(tau, p)
+            self.S += tau * Pn
+            return np.ascontiguousarray(Pn.reshape(self.shape))
+        Pa = self.fac.solve(tau, p)
+        P1 = self.fac.solve(0.5 * tau, p)
+        Pb = self.fac.solve(0.5 * tau, P1)
+        D = Pb - Pa
+        neg = D < 0
+        theta = 1.0
+        if neg.any():
+            theta = min(1.0, float(np.min((np.maximum(Pb[neg], 0.0) + self.eps) / -D[neg])))
+        self.theta_min = min(self.theta_min, theta)
+        Sb = 0.5 * tau * (P1 + Pb)
+        self.S += Sb + theta * (Sb - tau * Pa)
+        return np.ascontiguousarray((Pb + theta * D).reshape(self.shape))
+
+    def exits(self):
+        ex = self.asm.exits(self.S.reshape(self.shape))
+        return [ex["floor"], ex["sides"], ex["top"]]
+
+    def z_fluxes(self):
+        """Time-integrated upward flux through the z faces, ``(nz+1, ...)``."""
+        S = self.S.reshape(self.shape)
+        Fz = self.asm.z_fluxes(S)
+        if self.Bz is not None:
+            Fz = Fz + (self.Bz @ self.S).reshape(Fz.shape)
+        return Fz
+
+
+def imex_result(result_cls, grid, f, P, outlet, interval, frames, tracker, *, op, scheme,
+                ws, split, cfl):
+    """IMEX run packed as a :class:`spotpde.tracer.TracerResult` (``result_cls``).
+
+    ``op`` is the explicit :class:`spotpde.tracer._operator._Operator` (built with
+    ``implicit=True``: no diffusion in the kernel); its faces are replaced by the
+    explicit ones. Fast cells: explicit positivity rate above ``max(rate) / split``.
+    """
+    from ._stepping import _FixedStepper, _rk_step
+    t0 = time.perf_counter()
+    a = _advection.advective_rate(op.faces, grid.spacing)
+    fast = a > a.max() / split
+    fe, fi = split_faces(op.faces, fast)
+    op.faces = fe
+    op.rate_adv = op.rate = float(_advection.advective_rate(fe, grid.spacing).max())
+    imp = ImexSplit(grid, f, fi)
+    imp.eps = 1e-15 * float(P.max())
+
+    class _Imex(_FixedStepper):
+        def _advance(self, P, ops, dt, t):
+            P = imp.backward_euler(P, 0.5 * dt)
+            P = _rk_step(ops, P, dt, self.scheme, self.ws, self.budget)
+            return imp.backward_euler(P, 0.5 * dt)
+
+    stepper = _Imex(op, scheme, ws, True, grid.spacing, interval, cfl)
+    t = 0.0
+    for j in range(1, frames):
+        P, t = stepper.advance_to(P, t, tracker.times[j], tracker.tick)
+        budget = [b + c for b, c in zip(stepper.budget, imp.exits())]
+        tracker.record(j, t, P, budget, stepper.max_cfl)
+    faces = -(ws.Fz_acc + imp.z_fluxes())
+    info = {"time_scheme": scheme.name, "stepping": "imex", "limiter": None,
+            "diffusion": "implicit", "cfl": cfl, "split": split,
+            "cells_implicit": int(fast.sum()), "dt": interval / stepper.n_sub,
+            "factorisations": len(imp.fac.lu), "theta_min": imp.theta_min, "seconds_factorisation": imp.fac.seconds,
+            "n_bad": imp.n_bad, "seconds": time.perf_counter() - t0}
+    return result_cls(
+        times=tracker.times, P=tracker.P, mass=tracker.mass, outflow=tracker.outflow,
+        P_height=0.5 * (faces[:-1] + faces[1:]), P_height_faces=faces,
+        steps=stepper.steps, max_cfl=stepper.max_cfl, max_courant=stepper.max_courant,
+        mass_error=tracker.mass_error,
+        outflow_by_boundary={"floor": budget[0], "sides": budget[1], "top": budget[2]},
+        options=info)
