@@ -3,12 +3,18 @@ TR-BDF2 (issue 16, item 2), measured in the same run.
 
 Sections (each prints its times, the ratio and the accuracy):
 
+Schemes: ``explicit`` (today's default: WENO5, SSP-RK3, Strang-split implicit diffusion,
+``dt`` at the positivity limit of the fastest cell), ``imex`` (``stepping="imex"``,
+``--split`` 20: the fast cells next to the orifice implicit, ``dt`` 20 times larger) and
+``implicit`` (``stepping="implicit"``, adaptive TR-BDF2 on the hybrid operator, ``--tol``).
+
 * ``void`` (default): the void-model propagator of ``benchmarks/steady.py`` (280 x 320
   cells, release 60 d up a point orifice) to ``t = 4e5`` with 41 frames.
   - implicit: ``tracer.solve(..., stepping="implicit")`` for the whole run, timed;
   - explicit (WENO5, SSP-RK3, implicit diffusion; today's default): timed on
     ``[0, --t-cut]`` and **extrapolated** linearly to 4e5 (steady fields: a constant
-    number of steps per unit time), labelled as such;
+    number of steps per unit time), labelled as such; imex likewise on
+    ``[0, 20 t_cut]``;
   - accuracy: ``P_height`` at 4e5 against the steady solve (``solve_steady``, the
     drained limit of the same operator), the exit probabilities, and the time error
     (the same run with ``tol / 100``: L1 of ``mass(t)``, ``outflow(t)``, ``P_height``).
@@ -38,6 +44,7 @@ import numpy as np
 from steady import void_case
 
 from spotpde import tracer
+from spotpde.tracer import _advection, _implicit
 from spotpde._roundoff import clip_roundoff
 from spotpde.app import pipeline
 from spotpde.app.cases import load_case
@@ -98,7 +105,18 @@ def void(args):
           f"{rc.options['limiter']}, {rc.options['time_scheme']}, {rc.options['diffusion']} "
           f"diffusion); to 4e5 EXTRAPOLATED: {rc.steps / args.t_cut * 4e5:.3g} steps, "
           f"{t_exp:.3g} s = {t_exp / 3600:.1f} h")
-    print(f"  ratio explicit (extrapolated) / implicit: {t_exp / t_imp:.0f}x   (target >= 10x)")
+    t_cut_imex = 20 * args.t_cut
+    tracer.solve(grid, f, P0, 10.0, 2, stepping="imex", split=args.split)   # warm-up
+    t_w, rm = timed(lambda: tracer.solve(grid, f, P0, t_cut_imex, 2, stepping="imex",
+                                         split=args.split))
+    t_imex = t_w / t_cut_imex * 4e5
+    print(f"  imex     : {t_w:9.2f} s for t = {t_cut_imex:g} ({rm.steps} steps, split "
+          f"{args.split:g}, dt {rm.options['dt']:.3g}, {rm.options['cells_implicit']} cells "
+          f"implicit); to 4e5 EXTRAPOLATED: {rm.steps / t_cut_imex * 4e5:.3g} steps, "
+          f"{t_imex:.3g} s = {t_imex / 3600:.2f} h")
+    print(f"  ratios to explicit (extrapolated): implicit {t_exp / t_imp:.0f}x, imex "
+          f"{t_exp / t_imex:.1f}x (both extrapolated, per unit simulated time)   "
+          f"(target >= 10x)")
     s = tracer.solve_steady(grid, f, P0)
     hh = grid.spacing ** 2
     ob = ri.outflow_by_boundary
@@ -123,10 +141,14 @@ def window(args):
     print(f"void model, window [0, {T:g}], 5 frames, both run in full")
     t_imp, ri = timed(lambda: tracer.solve(grid, f, P0, T, 5, stepping="implicit", tol=args.tol))
     describe("implicit", t_imp, ri)
+    t_mx, rm = timed(lambda: tracer.solve(grid, f, P0, T, 5, stepping="imex", split=args.split))
+    describe("imex", t_mx, rm)
     t_exp, re = timed(lambda: tracer.solve(grid, f, P0, T, 5))
     describe("explicit", t_exp, re)
-    print(f"  ratio explicit / implicit: {t_exp / t_imp:.1f}x")
+    print(f"  ratio explicit / implicit: {t_exp / t_imp:.1f}x, explicit / imex "
+          f"{t_exp / t_mx:.1f}x")
     compare("implicit vs explicit", ri, re, grid)
+    compare("imex vs explicit", rm, re, grid)
 
 
 def small_void(h, T):
@@ -153,7 +175,8 @@ def convergence(args):
     runs = {}
     for h in (0.125, 0.25, 0.5):
         grid, f, P0 = setup(small_void(h, T))
-        for name, kw in (("explicit", {}), ("implicit", {"stepping": "implicit", "tol": args.tol})):
+        for name, kw in (("explicit", {}), ("imex", {"stepping": "imex", "split": args.split}),
+                         ("implicit", {"stepping": "implicit", "tol": args.tol})):
             if name == "explicit":
                 tracer.solve(grid, f, P0, 1.0, 2)
             t, r = timed(lambda: tracer.solve(grid, f, P0, T, 5, **kw))
@@ -190,8 +213,14 @@ def flagship(args):
     describe("explicit", t_exp, re)
     t_imp, ri = timed(lambda: tracer.solve(grid, f, P0, T, fr, stepping="implicit", tol=args.tol))
     describe("implicit", t_imp, ri)
-    print(f"  ratio explicit / implicit: {t_exp / t_imp:.2f}x")
+    t_mx, rm = timed(lambda: tracer.solve(grid, f, P0, T, fr, stepping="imex", split=args.split))
+    describe("imex", t_mx, rm)
+    ra = tracer.solve(grid, f, P0, T, fr, stepping="auto")
+    print(f"  auto chooses {ra.options['stepping']}; auto split here would be "
+          f"{_implicit.auto_split(_advection.face_velocities(f, grid.walls, np.ones(grid.shape[1:], bool)), grid.spacing):.2f}")
+    print(f"  ratio explicit / implicit: {t_exp / t_imp:.2f}x, explicit / imex {t_exp / t_mx:.2f}x")
     compare("implicit vs explicit", ri, re, grid)
+    compare("imex vs explicit", rm, re, grid)
     if args.flagship_ref:
         raw["domain"]["spacing"] = 0.125
         gf, ff, P0f = setup(load_case(raw))
@@ -201,7 +230,7 @@ def flagship(args):
         Pref = [coarsen(p, 2) for p in rf.P]
         fz = rf.P_height_faces[::2]
         phr = coarsen(np.repeat(0.5 * (fz[:-1] + fz[1:]), 2, axis=0), 2)
-        for name, r in (("explicit", re), ("implicit", ri)):
+        for name, r in (("explicit", re), ("imex", rm), ("implicit", ri)):
             print(f"  {name} error vs h = 0.125: max L1(P) "
                   f"{max(l1(a, b, hv) for a, b in zip(r.P, Pref)):.2e}, L1(P_height) "
                   f"{l1(r.P_height, phr, hh):.2e}, max |outflow| "
@@ -212,6 +241,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--t-cut", type=float, default=20.0)
     ap.add_argument("--tol", type=float, default=1e-5)
+    ap.add_argument("--split", type=float, default=20.0)
     ap.add_argument("--window", type=float, default=0.0)
     ap.add_argument("--convergence", action="store_true")
     ap.add_argument("--conv-t", type=float, default=400.0)

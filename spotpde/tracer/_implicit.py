@@ -276,7 +276,10 @@ class ImexSplit:
     ``(I - tau A_I) P_new = P`` (an M-matrix: positive for every ``tau``), its time
     integral ``S`` kept for the fluxes (``P_height``, outflow)."""
 
-    def __init__(self, grid, f, faces_implicit):
+    def __init__(self, grid, f, faces_implicit, extrapolate=True, eps=0.0):
+        self.extrapolate = extrapolate
+        self.eps = eps
+        self.theta_min = 1.0
         terms, self.n_bad = _diffusion.split_tensor(f, grid.dims)
         axial = {}
         for name in _AXES[grid.dims]:
@@ -289,10 +292,12 @@ class ImexSplit:
         self.fac = _Factors(self.A)
         self.S = np.zeros(self.A.shape[0])
         self.shape = grid.shape
-
-    extrapolate = True
-    theta_min = 1.0
-    eps = 0.0
+        self.A_diag = self.A.diagonal()
+        off = (self.A - sp.diags(self.A_diag)).tocsc()
+        off.data[off.data < 0] = 0.0          # none: the off-diagonals of an M-matrix
+        off.eliminate_zeros()
+        off.sort_indices()
+        self.A_off = off
 
     def backward_euler(self, P, tau):
         p = P.ravel()
@@ -303,15 +308,41 @@ class ImexSplit:
         Pa = self.fac.solve(tau, p)
         P1 = self.fac.solve(0.5 * tau, p)
         Pb = self.fac.solve(0.5 * tau, P1)
-        D = Pb - Pa
-        neg = D < 0
-        theta = 1.0
-        if neg.any():
-            theta = min(1.0, float(np.min((np.maximum(Pb[neg], 0.0) + self.eps) / -D[neg])))
-        self.theta_min = min(self.theta_min, theta)
         Sb = 0.5 * tau * (P1 + Pb)
-        self.S += Sb + theta * (Sb - tau * Pa)
-        return np.ascontiguousarray((Pb + theta * D).reshape(self.shape))
+        delta = Sb - tau * Pa                # Pb - Pa = A delta
+        theta = self._limit(Pb, delta)
+        self.theta_min = min(self.theta_min, float(theta.min()))
+        corr = theta * delta
+        self.S += Sb + corr
+        return np.ascontiguousarray((Pb + self.A @ corr).reshape(self.shape))
+
+    def _limit(self, Pb, delta):
+        """Per-cell weights ``theta in [0, 1]`` of the correction ``A (theta delta)`` that
+        keep ``Pb + A (theta delta) >= -eps``: cell ``i`` can lose at most ``Pb_i + eps``
+        through the negative terms ``A_ij delta_j`` (``delta_j < 0``, ``A_ij >= 0``) and
+        ``A_ii delta_i`` (``delta_i > 0``), so these are scaled by ``R_i = min(1, (Pb_i +
+        eps) / -N_i)``, ``N_i`` their sum; ``theta_j`` is the smallest ``R`` of the cells
+        ``delta_j`` takes from (itself if ``delta_j > 0``, its neighbours if ``< 0``)."""
+        neg, pos = np.minimum(delta, 0.0), np.maximum(delta, 0.0)
+        N = self.A_off @ neg + self.A_diag * pos
+        R = np.ones_like(Pb)
+        bad = N < 0
+        R[bad] = np.minimum(1.0, (np.maximum(Pb[bad], 0.0) + self.eps) / -N[bad])
+        theta = np.where(delta > 0, R, 1.0)
+        take = delta < 0
+        if take.any():
+            theta[take] = np.minimum(theta[take], self._column_min(R)[take])
+        return theta
+
+    def _column_min(self, R):
+        """``min_i R_i`` over the rows ``i`` of each column of ``A_off`` (1 if empty)."""
+        A = self.A_off
+        out = np.ones(A.shape[1])
+        if A.nnz:
+            vals = R[A.indices]
+            nonempty = np.diff(A.indptr) > 0
+            out[nonempty] = np.minimum.reduceat(vals, A.indptr[:-1][nonempty])
+        return out
 
     def exits(self):
         ex = self.asm.exits(self.S.reshape(self.shape))
@@ -326,8 +357,23 @@ class ImexSplit:
         return Fz
 
 
+#: ``stepping="auto"``: smallest useful split (below it the run stays explicit)
+MIN_SPLIT = 4.0
+
+
+def auto_split(faces, h, fraction=0.01):
+    """``max(a) / q``: ``a`` the advective positivity rate of the cells, ``q`` its
+    ``1 - fraction`` quantile over the cells that move (``a > 0``): the step gain of
+    making the fastest ``fraction`` of the moving cells implicit."""
+    a = _advection.advective_rate(faces, h)
+    moving = a[a > 0]
+    if moving.size == 0:
+        return 1.0
+    return float(a.max() / max(np.quantile(moving, 1.0 - fraction), 1e-300))
+
+
 def imex_result(result_cls, grid, f, P, outlet, interval, frames, tracker, *, op, scheme,
-                ws, split, cfl):
+                ws, split, cfl, limiter, extrapolate=True):
     """IMEX run packed as a :class:`spotpde.tracer.TracerResult` (``result_cls``).
 
     ``op`` is the explicit :class:`spotpde.tracer._operator._Operator` (built with
@@ -341,14 +387,26 @@ def imex_result(result_cls, grid, f, P, outlet, interval, frames, tracker, *, op
     fe, fi = split_faces(op.faces, fast)
     op.faces = fe
     op.rate_adv = op.rate = float(_advection.advective_rate(fe, grid.spacing).max())
-    imp = ImexSplit(grid, f, fi)
-    imp.eps = 1e-15 * float(P.max())
+    imp = ImexSplit(grid, f, fi, extrapolate, 1e-15 * float(P.max()))
 
     class _Imex(_FixedStepper):
-        def _advance(self, P, ops, dt, t):
+        """Strang splitting with the implicit halves of neighbouring steps merged:
+        ``I(dt/2) [E(dt) I(dt)]^(n-1) E(dt) I(dt/2)`` over each frame interval."""
+
+        def advance_to(self, P, t, t_target, tick):
+            n = self.n_sub
+            dt = self.interval / n
+            ops = [self.op] * self.scheme.stages
             P = imp.backward_euler(P, 0.5 * dt)
-            P = _rk_step(ops, P, dt, self.scheme, self.ws, self.budget)
-            return imp.backward_euler(P, 0.5 * dt)
+            for m in range(n):
+                P = _rk_step(ops, P, dt, self.scheme, self.ws, self.budget)
+                P = imp.backward_euler(P, dt if m < n - 1 else 0.5 * dt)
+                t = t_target if m == n - 1 else t + dt
+                self.steps += 1
+                tick(self.steps, t)
+            self.max_cfl = max(self.max_cfl, dt * self.op.rate)
+            self.max_courant = max(self.max_courant, dt * self.op.umax / self.h)
+            return P, t
 
     stepper = _Imex(op, scheme, ws, True, grid.spacing, interval, cfl)
     t = 0.0
@@ -357,7 +415,7 @@ def imex_result(result_cls, grid, f, P, outlet, interval, frames, tracker, *, op
         budget = [b + c for b, c in zip(stepper.budget, imp.exits())]
         tracker.record(j, t, P, budget, stepper.max_cfl)
     faces = -(ws.Fz_acc + imp.z_fluxes())
-    info = {"time_scheme": scheme.name, "stepping": "imex", "limiter": None,
+    info = {"time_scheme": scheme.name, "stepping": "imex", "limiter": limiter,
             "diffusion": "implicit", "cfl": cfl, "split": split,
             "cells_implicit": int(fast.sum()), "dt": interval / stepper.n_sub,
             "factorisations": len(imp.fac.lu), "theta_min": imp.theta_min, "seconds_factorisation": imp.fac.seconds,

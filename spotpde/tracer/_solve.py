@@ -57,8 +57,8 @@ __all__ = ["DIFFUSION_MODES", "Fields", "TracerResult", "required_fields", "solv
 Fields = Union[Mapping[str, np.ndarray], Callable[[float], Mapping[str, np.ndarray]]]
 
 DIFFUSION_MODES = ("auto", "explicit", "implicit")
-#: ``stepping="auto"`` steps implicitly beyond this many explicit steps (steady fields)
-AUTO_IMPLICIT_STEPS = 200_000
+#: ``stepping="auto"`` uses IMEX beyond this many explicit steps (steady fields)
+AUTO_IMEX_STEPS = 200_000
 STEPPING_MODES = ("explicit", "imex", "implicit", "auto")
 
 
@@ -143,13 +143,21 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
             (``TracerResult.P`` is ``None``), so memory does not grow with ``frames``.
             ``P`` is the solver's working array: copy or write it out, do not keep it.
         stepping: ``"explicit"`` (default: SSP Runge-Kutta at the positivity limit),
-            ``"implicit"`` (steady fields only: adaptive TR-BDF2 on the linear hybrid
-            M-matrix operator of :func:`solve_steady`, step sizes set by ``tol``, not by
-            the CFL limit; ``limiter``, ``time_scheme``, ``diffusion``, ``cfl`` and
-            ``threads`` are then unused; docs/tracer.md) or ``"auto"``: implicit for
-            steady fields when the explicit run would take more than
-            ``AUTO_IMPLICIT_STEPS`` steps, else explicit.
-        tol: local error per implicit step, L1 relative to the initial mass (> 0).
+            ``"imex"`` (steady fields only: the cells whose positivity rate exceeds
+            ``max(rate) / split`` are stepped implicitly with the hybrid M-matrix
+            operator of :func:`solve_steady`, the rest explicitly as before, so ``dt`` is
+            about ``split`` times the explicit one; diffusion implicit everywhere,
+            second order; docs/tracer.md), ``"implicit"`` (steady fields only: adaptive
+            TR-BDF2 on the hybrid operator everywhere, step sizes set by ``tol``, not by
+            the CFL limit; first order along the flow where the cell Peclet number
+            exceeds 2; ``limiter``, ``time_scheme``, ``diffusion``, ``cfl`` and
+            ``threads`` are unused) or ``"auto"``: ``"imex"`` for steady fields when
+            the explicit run would take more than ``AUTO_IMEX_STEPS`` steps and fewer
+            than 1 % of the moving cells are 4 or more times faster than the rest
+            (``split`` is then at most that ratio), else ``"explicit"``.
+        tol: ``"implicit"``: local error per step, L1 relative to the initial mass, in
+            (0, 1).
+        split: ``"imex"``: ratio (>= 1) of the explicit step to today's CFL step.
 
     Returns:
         :class:`TracerResult`.
@@ -257,8 +265,12 @@ def _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl
 
     interval = t_end / (frames - 1)
     est_steps = max(1, math.ceil(interval * op0.rate / cfl)) * (frames - 1)
-    if stepping == "implicit" or (stepping == "auto" and steady
-                                  and est_steps > AUTO_IMPLICIT_STEPS):
+    if stepping == "auto":
+        # IMEX where a few fast cells (next to a point orifice) set the explicit step
+        split = min(split, _implicit.auto_split(op0.faces, grid.spacing)) if steady and \
+            est_steps > AUTO_IMEX_STEPS else 1.0
+        stepping = "imex" if split >= _implicit.MIN_SPLIT else "explicit"
+    if stepping == "implicit":
         tracker = _FrameTracker(grid, P, t_end, frames, on_frame, progress, check_mass,
                                 every=1)
         return _implicit.result(TracerResult, grid, f0, P, outlet, interval, frames,
@@ -271,7 +283,7 @@ def _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl
                                 every=max(1, int(est_steps / split) // 200))
         return _implicit.imex_result(TracerResult, grid, f0, P, outlet, interval, frames,
                                      tracker, op=op, scheme=scheme, ws=ws, split=split,
-                                     cfl=cfl)
+                                     cfl=cfl, limiter=lim.name)
     ws = _Workspace(grid, p_scale)
     tracker = _FrameTracker(grid, P, t_end, frames, on_frame, progress, check_mass,
                             every=max(1, est_steps // 200))
