@@ -1,33 +1,28 @@
-"""Implicit time stepping of the tracer equation on the linear M-matrix operator (private).
+"""Implicit and IMEX time stepping of the tracer equation for long runs (private).
 
 For steady coefficient fields the explicit solver's step is capped by the fastest cell
 (next to a point orifice: ``dt ~ 0.05`` for the void propagator at ``h = d/4``) while the
-slow flow far up sets ``t_end`` (``4e5``: 7.3e6 steps). Here the semi-discrete equation
+slow flow far up sets ``t_end`` (``4e5``: 7.3e6 steps). Two ways out, both on the
+linear hybrid central/upwind finite-volume operator ``A`` of :mod:`._steady` (same
+boundaries, the positive diffusion splitting; ``-A`` has a positive diagonal,
+non-positive off-diagonals and column sums equal to the boundary outflow rates, so
+``I - tau A`` is an M-matrix and ``(I - tau A)^-1 >= 0`` for every ``tau > 0``):
 
-    dP/dt = A P
+* ``stepping="imex"`` (:class:`IMEXStrang`, :func:`imex_result`): the few cells whose
+  explicit positivity rate exceeds ``max(a) / split`` (next to the orifice) are
+  stepped implicitly with ``A`` restricted to their faces, together with all of the
+  diffusion; everything else keeps the explicit limited high-order advection
+  (WENO5, SSP-RK3) at ``split`` times today's step. Same accuracy as the explicit run
+  where the tracer spends its time (docs/tracer.md).
+* ``stepping="implicit"`` (:class:`TRBDF2`, :func:`result`): ``dP/dt = A P`` everywhere
+  by adaptive TR-BDF2, step sizes ``interval / 2**k`` chosen by an embedded error
+  estimate, one SuperLU factorisation per step size. First order along the flow where
+  the cell Peclet number exceeds 2 (the hybrid scheme is upwind there).
 
-with ``A`` the linear hybrid central/upwind finite-volume operator of
-:mod:`spotpde.tracer._steady` (the same boundaries, the positive diffusion splitting;
-``-A`` has a positive diagonal, non-positive off-diagonals and column sums equal to the
-boundary outflow rates) is integrated by TR-BDF2 (:class:`TRBDF2`) with step sizes set
-by an embedded local error estimate, not by the CFL limit. Both implicit stages use the
-same matrix ``I - d dt A``, factorised once per step size (SuperLU) and reused; step
-sizes are ``interval / 2**k`` (``interval`` the frame interval), so frames are hit
-exactly and only a few factorisations are needed.
-
-Properties:
-
-* conservation: every stage is a difference of face fluxes, so
-  ``P_{n+1} = P_n + A (dt sum_i b_i Y_i)``; the running integral ``S = int P dt``
-  (``sum_i b_i dt Y_i`` per step) gives the outflow through floor, sides and top and
-  ``P_height`` (the z-face fluxes of ``S``), so ``mass + outflow = mass0`` to round-off;
-* positivity: ``I - tau A`` is an M-matrix for every ``tau > 0`` (``(I - tau A)^-1 >= 0``),
-  so backward Euler is positive for any step. TR-BDF2 is not unconditionally positive
-  (no linear method above first order is: Bolley & Crouzeix 1978); a step with a value
-  below ``-1e-13 max(P0)`` is redone by backward Euler with the same ``dt`` (counted in
-  ``options["fallback_steps"]``), so ``P >= 0`` up to solver round-off;
-* the drained limit: ``S -> G`` of :func:`spotpde.tracer.solve_steady` (``P_N = P_0 + A S``
-  exactly), so ``P_height`` converges to the steady solve's as the mass drains.
+Both are exactly conservative (every stage is a difference of face fluxes; the running
+integral ``S = int P dt`` of the implicit parts gives their outflow and ``P_height``, so
+``mass + outflow = mass0`` to round-off) and positive (the M-matrix; the second-order
+corrections are limited, or the step redone by backward Euler).
 """
 
 from __future__ import annotations
@@ -73,6 +68,28 @@ class TRBDF2:
     unconditionally_positive = False    # safeguarded by a backward-Euler redo
     reference = ("Bank et al. 1985, IEEE Trans. CAD 4, 436; Hosea & Shampine 1996, "
                  "Appl. Numer. Math. 20, 21")
+
+
+class IMEXStrang:
+    """IMEX splitting for ``stepping="imex"``: explicit SSP-RK (the limited high-order
+    advection of the slow cells) between implicit steps of ``A_I`` (hybrid advection
+    through the faces of the fast cells plus all of the diffusion), Strang-ordered with
+    the halves of neighbouring steps merged,
+
+        P(t + n dt) = I(dt/2) [E(dt) I(dt)]^(n-1) E(dt) I(dt/2) P(t),
+
+    ``I(tau)`` the extrapolated backward Euler ``2 BE(tau/2)^2 - BE(tau)`` whose
+    correction is limited cell by cell to keep ``P >= 0`` (:meth:`ImexSplit._limit`).
+    Explicit part positive for ``dt max(a_explicit) <= 1``; implicit part for every dt.
+    """
+
+    name = "imex"
+    order = 2                            # where the limiter is inactive
+    positive = True
+    conservative = True
+    reference = ("Strang 1968, SIAM J. Numer. Anal. 5, 506 (splitting); Richardson "
+                 "extrapolation of backward Euler (Hairer & Wanner 1996, IV.9); limiter: "
+                 "ours, after Zalesak 1979, J. Comput. Phys. 31, 335")
 
 
 def build_operator(grid, f, outlet, scheme="hybrid"):
