@@ -69,7 +69,9 @@ def test_trbdf2_second_order_in_dt():
     grid, fields, P0 = _void(0.5)
     from spotpde.tracer._operator import _check_fields
     f = _check_fields(grid, fields, "fields")
-    A, _, _, _ = _implicit.build_operator(grid, f, np.ones(grid.shape[1:], bool))
+    from spotpde.tracer import _advection
+    faces = _advection.face_velocities(f, grid.walls, np.ones(grid.shape[1:], bool))
+    A, _, _, _ = _implicit.build_operator(grid, f, faces)
     T = 4.0
     exact = spla.expm_multiply(T * A, P0.ravel())
     errs = []

@@ -92,10 +92,11 @@ class IMEXStrang:
                  "ours, after Zalesak 1979, J. Comput. Phys. 31, 335")
 
 
-def build_operator(grid, f, outlet, scheme="hybrid"):
-    """The linear operator ``A`` (CSC, 1/time), its assembly (face fluxes, exits) and the
-    diffusive z-face flux map ``Bz`` (or ``None``) for the fields ``f`` (checked)."""
-    faces = _advection.face_velocities(f, grid.walls, outlet)
+def build_operator(grid, f, faces, scheme="hybrid"):
+    """The linear operator ``A`` (CSC, 1/time) of the hybrid advection through ``faces``
+    (face velocities, :func:`spotpde.tracer._advection.face_velocities`, possibly with
+    some set to 0) plus the whole diffusion of the fields ``f`` (checked), its assembly
+    (face fluxes, exits) and the diffusive z-face flux map ``Bz`` (or ``None``)."""
     terms, n_bad = _diffusion.split_tensor(f, grid.dims)
     axial = {}
     for name in _AXES[grid.dims]:
@@ -108,13 +109,16 @@ def build_operator(grid, f, outlet, scheme="hybrid"):
 
 
 class _Factors:
-    """SuperLU factors of ``I - tau A``, one per ``tau`` (kept: the step sizes form a
-    short ladder)."""
+    """SuperLU factors of ``I - tau A``, one per ``tau``; the last ``KEEP`` are kept (the
+    step sizes move along a short ladder; each factor of the void case is ~30 MB)."""
+
+    KEEP = 4
 
     def __init__(self, A):
         self.A = A
         self.I = sp.identity(A.shape[0], format="csc")
         self.lu = {}
+        self.count = 0
         self.seconds = 0.0
 
     def solve(self, tau, rhs):
@@ -123,6 +127,9 @@ class _Factors:
             t0 = time.perf_counter()
             lu = spla.splu((self.I - tau * self.A).tocsc(), permc_spec="MMD_AT_PLUS_A")
             self.seconds += time.perf_counter() - t0
+            self.count += 1
+            if len(self.lu) >= self.KEEP:
+                self.lu.pop(next(iter(self.lu)))
             self.lu[tau] = lu
         return lu.solve(rhs)
 
@@ -222,7 +229,8 @@ def run(grid, f, P, outlet, interval, frames, tracker, *, tol, dt0):
         sides, top, and a dict of options for the result.
     """
     t0 = time.perf_counter()
-    A, asm, Bz, n_bad = build_operator(grid, f, outlet)
+    A, asm, Bz, n_bad = build_operator(grid, f, _advection.face_velocities(f, grid.walls,
+                                                                          outlet))
     hv = grid.cell_volume
     shape = grid.shape
     stepper = ImplicitStepper(A, interval, tol, dt0, hv, tracker.mass0, float(P.max()))
@@ -242,7 +250,7 @@ def run(grid, f, P, outlet, interval, frames, tracker, *, tol, dt0):
         Fz = Fz + (Bz @ stepper.S).reshape(Fz.shape)
     info = {"time_scheme": TRBDF2.name, "stepping": "implicit", "limiter": "hybrid",
             "diffusion": "implicit", "tol": tol, "rejected_steps": stepper.rejected,
-            "fallback_steps": stepper.fallback, "factorisations": len(stepper.fac.lu),
+            "fallback_steps": stepper.fallback, "factorisations": stepper.fac.count,
             "seconds_factorisation": stepper.fac.seconds, "dt_min": stepper.min_dt,
             "dt_max": stepper.max_dt, "n_bad": n_bad,
             "seconds": time.perf_counter() - t0}
@@ -297,15 +305,7 @@ class ImexSplit:
         self.extrapolate = extrapolate
         self.eps = eps
         self.theta_min = 1.0
-        terms, self.n_bad = _diffusion.split_tensor(f, grid.dims)
-        axial = {}
-        for name in _AXES[grid.dims]:
-            off = tuple(1 if a == name else 0 for a in _AXES[grid.dims])
-            axial[name] = next((A for o, A in terms if o == off), np.zeros(grid.shape))
-        self.asm = _Assembly(grid, faces_implicit, axial, "hybrid")
-        self.A = (self.asm.matrix() + _diffusion.operator(terms, grid.shape, grid.spacing)).tocsc()
-        self.Bz = _diffusion.vertical_flux_operator(terms, grid.shape, grid.spacing) \
-            if terms else None
+        self.A, self.asm, self.Bz, self.n_bad = build_operator(grid, f, faces_implicit)
         self.fac = _Factors(self.A)
         self.S = np.zeros(self.A.shape[0])
         self.shape = grid.shape
@@ -435,7 +435,7 @@ def imex_result(result_cls, grid, f, P, outlet, interval, frames, tracker, *, op
     info = {"time_scheme": scheme.name, "stepping": "imex", "limiter": limiter,
             "diffusion": "implicit", "cfl": cfl, "split": split,
             "cells_implicit": int(fast.sum()), "dt": interval / stepper.n_sub,
-            "factorisations": len(imp.fac.lu), "theta_min": imp.theta_min, "seconds_factorisation": imp.fac.seconds,
+            "factorisations": imp.fac.count, "theta_min": imp.theta_min, "seconds_factorisation": imp.fac.seconds,
             "n_bad": imp.n_bad, "seconds": time.perf_counter() - t0}
     return result_cls(
         times=tracker.times, P=tracker.P, mass=tracker.mass, outflow=tracker.outflow,
