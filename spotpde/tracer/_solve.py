@@ -108,7 +108,7 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
           outlet: np.ndarray | None = None, check_mass: float = 1e-9,
           threads: int | None = None,
           on_frame: Callable[[int, float, np.ndarray], None] | None = None,
-          stepping: str = "explicit", tol: float = 1e-5, split: float = 20.0) -> TracerResult:
+          stepping: str = "explicit", tol: float = 1e-5, split: float = 5.0) -> TracerResult:
     """Evolve the tracer density ``P`` from ``P0`` over ``[0, t_end]``.
 
     Args:
@@ -222,7 +222,7 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
 
 
 def _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl, outlet,
-           check_mass, on_frame=None, stepping="explicit", tol=1e-5, split=20.0):
+           check_mass, on_frame=None, stepping="explicit", tol=1e-5, split=5.0):
     """Core of :func:`solve` (inputs checked): the operators, then the frames.
 
     Steady fields use the fixed-step driver, time-dependent ones the adaptive one
