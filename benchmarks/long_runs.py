@@ -106,13 +106,14 @@ def void(args):
           f"{rc.options['limiter']}, {rc.options['time_scheme']}, {rc.options['diffusion']} "
           f"diffusion); to 4e5 EXTRAPOLATED: {rc.steps / args.t_cut * 4e5:.3g} steps, "
           f"{t_exp:.3g} s = {t_exp / 3600:.1f} h")
-    for split in args.splits:
+    for mode, split in [("imex", s) for s in args.splits] + [("multirate", s) for s in
+                                                            args.multirate_splits]:
         t_cut_imex = split * args.t_cut
-        tracer.solve(grid, f, P0, 10.0, 2, stepping="imex", split=split)   # warm-up
-        t_w, rm = timed(lambda: tracer.solve(grid, f, P0, t_cut_imex, 2, stepping="imex",
+        tracer.solve(grid, f, P0, 10.0, 2, stepping=mode, split=split)   # warm-up
+        t_w, rm = timed(lambda: tracer.solve(grid, f, P0, t_cut_imex, 2, stepping=mode,
                                              split=split))
         t_imex = t_w / t_cut_imex * 4e5
-        print(f"  imex     : {t_w:9.2f} s for t = {t_cut_imex:g} ({rm.steps} steps, split "
+        print(f"  {mode:9s}: {t_w:9.2f} s for t = {t_cut_imex:g} ({rm.steps} steps, split "
               f"{split:g}, dt {rm.options['dt']:.3g}, {rm.options['cells_implicit']} cells "
               f"implicit); to 4e5 EXTRAPOLATED: {rm.steps / t_cut_imex * 4e5:.3g} steps, "
               f"{t_imex:.3g} s = {t_imex / 3600:.2f} h; explicit / imex "
@@ -180,6 +181,7 @@ def convergence(args):
     for h in (0.125, 0.25, 0.5):
         grid, f, P0 = setup(small_void(h, T))
         for name, kw in (("explicit", {}), ("imex", {"stepping": "imex", "split": args.split}),
+                         ("multirate", {"stepping": "multirate", "split": 10.0}),
                          ("implicit", {"stepping": "implicit", "tol": args.tol})):
             if name == "explicit":
                 tracer.solve(grid, f, P0, 1.0, 2)
@@ -248,6 +250,8 @@ def main():
     ap.add_argument("--split", type=float, default=5.0)
     ap.add_argument("--splits", type=float, nargs="*", default=[5.0, 20.0],
                     help="void section: IMEX splits to time")
+    ap.add_argument("--multirate-splits", type=float, nargs="*", default=[10.0, 20.0],
+                    help="void section: multirate splits to time")
     ap.add_argument("--time-error", action="store_true",
                     help="void section: also the implicit run with tol / 100")
     ap.add_argument("--window", type=float, default=0.0)

@@ -390,12 +390,14 @@ def auto_split(faces, h, fraction=0.01):
 
 
 def imex_result(result_cls, grid, f, P, outlet, interval, frames, tracker, *, op, scheme,
-                ws, split, cfl, limiter, extrapolate=True):
+                ws, split, cfl, limiter, extrapolate=True, multirate=False):
     """IMEX run packed as a :class:`spotpde.tracer.TracerResult` (``result_cls``).
 
     ``op`` is the explicit :class:`spotpde.tracer._operator._Operator` (built with
     ``implicit=True``: no diffusion in the kernel); its faces are replaced by the
     explicit ones. Fast cells: explicit positivity rate above ``max(rate) / split``.
+    ``multirate``: the fast faces are sub-stepped explicitly on their box
+    (:mod:`._multirate`) instead of implicitly; the implicit part is the diffusion.
     """
     from ._stepping import _FixedStepper, _rk_step
     t0 = time.perf_counter()
@@ -404,7 +406,19 @@ def imex_result(result_cls, grid, f, P, outlet, interval, frames, tracker, *, op
     fe, fi = split_faces(op.faces, fast)
     op.faces = fe
     op.rate_adv = op.rate = float(_advection.advective_rate(fe, grid.spacing).max())
+    box = None
+    if multirate and fast.any():
+        from ._multirate import FastBox
+        box = FastBox(op, fi, fast, ws, scheme, cfl, float(P.max()))
+        fi = {k: np.zeros_like(v) for k, v in fi.items()}
     imp = ImexSplit(grid, f, fi, extrapolate, 1e-15 * float(P.max()))
+
+    def explicit_step(P, ops, dt, budget):
+        if box is None:
+            return _rk_step(ops, P, dt, scheme, ws, budget)
+        P = box.advance(P, 0.5 * dt, budget)
+        P = _rk_step(ops, P, dt, scheme, ws, budget)
+        return box.advance(P, 0.5 * dt, budget)
 
     class _Imex(_FixedStepper):
         """Strang splitting with the implicit halves of neighbouring steps merged:
@@ -416,7 +430,7 @@ def imex_result(result_cls, grid, f, P, outlet, interval, frames, tracker, *, op
             ops = [self.op] * self.scheme.stages
             P = imp.backward_euler(P, 0.5 * dt)
             for m in range(n):
-                P = _rk_step(ops, P, dt, self.scheme, self.ws, self.budget)
+                P = explicit_step(P, ops, dt, self.budget)
                 P = imp.backward_euler(P, dt if m < n - 1 else 0.5 * dt)
                 t = t_target if m == n - 1 else t + dt
                 self.steps += 1
@@ -432,7 +446,9 @@ def imex_result(result_cls, grid, f, P, outlet, interval, frames, tracker, *, op
         budget = [b + c for b, c in zip(stepper.budget, imp.exits())]
         tracker.record(j, t, P, budget, stepper.max_cfl)
     faces = -(ws.Fz_acc + imp.z_fluxes())
-    info = {"time_scheme": scheme.name, "stepping": "imex", "limiter": limiter,
+    info = {"time_scheme": scheme.name, "stepping": "multirate" if multirate else "imex",
+            "limiter": limiter, "box_cells": box.cells if box else 0,
+            "substeps": box.substeps if box else 0,
             "diffusion": "implicit", "cfl": cfl, "split": split,
             "cells_implicit": int(fast.sum()), "dt": interval / stepper.n_sub,
             "factorisations": imp.fac.count, "theta_min": imp.theta_min, "seconds_factorisation": imp.fac.seconds,

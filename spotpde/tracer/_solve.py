@@ -59,7 +59,7 @@ Fields = Union[Mapping[str, np.ndarray], Callable[[float], Mapping[str, np.ndarr
 DIFFUSION_MODES = ("auto", "explicit", "implicit")
 #: ``stepping="auto"`` uses IMEX beyond this many explicit steps (steady fields)
 AUTO_IMEX_STEPS = 200_000
-STEPPING_MODES = ("explicit", "imex", "implicit", "auto")
+STEPPING_MODES = ("explicit", "imex", "multirate", "implicit", "auto")
 
 
 @dataclass
@@ -178,7 +178,7 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
     if stepping not in STEPPING_MODES:
         problems.append(f"stepping: unknown mode {stepping!r}; valid choices: "
                         f"{', '.join(STEPPING_MODES)}")
-    elif stepping in ("implicit", "imex") and callable(fields):
+    elif stepping in ("implicit", "imex", "multirate") and callable(fields):
         problems.append(f"stepping: {stepping!r} needs steady fields (a dict), got a callable")
     if not (isinstance(split, (int, float)) and split >= 1):
         problems.append(f"split: must be a number >= 1, got {split!r}")
@@ -276,14 +276,15 @@ def _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl
         return _implicit.result(TracerResult, grid, f0, P, outlet, interval, frames,
                                 tracker, tol=tol, dt0=cfl / op0.rate_explicit,
                                 rate=op0.rate_explicit, umax=op0.umax)
-    if stepping == "imex":
+    if stepping in ("imex", "multirate"):
         op = _Operator(grid, f0, lim.code, outlet, implicit=True, p_scale=p_scale)
         ws = _Workspace(grid, p_scale)
         tracker = _FrameTracker(grid, P, t_end, frames, on_frame, progress, check_mass,
                                 every=max(1, int(est_steps / split) // 200))
         return _implicit.imex_result(TracerResult, grid, f0, P, outlet, interval, frames,
                                      tracker, op=op, scheme=scheme, ws=ws, split=split,
-                                     cfl=cfl, limiter=lim.name)
+                                     cfl=cfl, limiter=lim.name,
+                                     multirate=stepping == "multirate")
     ws = _Workspace(grid, p_scale)
     tracker = _FrameTracker(grid, P, t_end, frames, on_frame, progress, check_mass,
                             every=max(1, est_steps // 200))
