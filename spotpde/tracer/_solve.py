@@ -57,8 +57,10 @@ __all__ = ["DIFFUSION_MODES", "Fields", "TracerResult", "required_fields", "solv
 Fields = Union[Mapping[str, np.ndarray], Callable[[float], Mapping[str, np.ndarray]]]
 
 DIFFUSION_MODES = ("auto", "explicit", "implicit")
-#: ``stepping="auto"`` uses IMEX beyond this many explicit steps (steady fields)
+#: ``stepping="auto"`` uses multirate beyond this many explicit steps (steady fields)
 AUTO_IMEX_STEPS = 200_000
+#: default ``split`` of each mode: the largest measured to keep the explicit accuracy
+DEFAULT_SPLIT = {"imex": 5.0, "multirate": 10.0}
 STEPPING_MODES = ("explicit", "imex", "multirate", "implicit", "auto")
 
 
@@ -108,7 +110,8 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
           outlet: np.ndarray | None = None, check_mass: float = 1e-9,
           threads: int | None = None,
           on_frame: Callable[[int, float, np.ndarray], None] | None = None,
-          stepping: str = "explicit", tol: float = 1e-5, split: float = 5.0) -> TracerResult:
+          stepping: str = "explicit", tol: float = 1e-5,
+          split: float | None = None) -> TracerResult:
     """Evolve the tracer density ``P`` from ``P0`` over ``[0, t_end]``.
 
     Args:
@@ -143,21 +146,26 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
             (``TracerResult.P`` is ``None``), so memory does not grow with ``frames``.
             ``P`` is the solver's working array: copy or write it out, do not keep it.
         stepping: ``"explicit"`` (default: SSP Runge-Kutta at the positivity limit),
-            ``"imex"`` (steady fields only: the cells whose positivity rate exceeds
-            ``max(rate) / split`` are stepped implicitly with the hybrid M-matrix
-            operator of :func:`solve_steady`, the rest explicitly as before, so ``dt`` is
-            about ``split`` times the explicit one; diffusion implicit everywhere,
-            second order; docs/tracer.md), ``"implicit"`` (steady fields only: adaptive
-            TR-BDF2 on the hybrid operator everywhere, step sizes set by ``tol``, not by
-            the CFL limit; first order along the flow where the cell Peclet number
-            exceeds 2; ``limiter``, ``time_scheme``, ``diffusion``, ``cfl`` and
-            ``threads`` are unused) or ``"auto"``: ``"imex"`` for steady fields when
-            the explicit run would take more than ``AUTO_IMEX_STEPS`` steps and fewer
-            than 1 % of the moving cells are 4 or more times faster than the rest
-            (``split`` is then at most that ratio), else ``"explicit"``.
+            ``"multirate"`` (steady fields only: the faces of the cells whose positivity
+            rate exceeds ``max(rate) / split``, next to a point orifice, are sub-stepped
+            explicitly on a small box, the rest stepped at about ``split`` times the
+            explicit step; diffusion implicit everywhere, second order), ``"imex"``
+            (the same, the fast faces implicit with the hybrid M-matrix operator of
+            :func:`solve_steady`: cheaper, first order along the flow there),
+            ``"implicit"`` (steady fields only: adaptive TR-BDF2 on the hybrid operator
+            everywhere, step sizes set by ``tol``, not by the CFL limit; first order
+            along the flow where the cell Peclet number exceeds 2; ``limiter``,
+            ``time_scheme``, ``diffusion``, ``cfl`` and ``threads`` are unused) or
+            ``"auto"``: ``"multirate"`` for steady fields when the explicit run would
+            take more than ``AUTO_IMEX_STEPS`` steps and fewer than 1 % of the moving
+            cells are 4 or more times faster than the rest (``split`` is then at most
+            that ratio), else ``"explicit"``. All are positive and conservative
+            (docs/long_runs.md).
         tol: ``"implicit"``: local error per step, L1 relative to the initial mass, in
             (0, 1).
-        split: ``"imex"``: ratio (>= 1) of the explicit step to today's CFL step.
+        split: ``"multirate"`` / ``"imex"``: ratio (>= 1) of the step to the explicit
+            CFL step; default ``DEFAULT_SPLIT`` (10 and 5: the largest that kept the
+            explicit accuracy of frames, outflow and P_height in the measurements).
 
     Returns:
         :class:`TracerResult`.
@@ -180,6 +188,8 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
                         f"{', '.join(STEPPING_MODES)}")
     elif stepping in ("implicit", "imex", "multirate") and callable(fields):
         problems.append(f"stepping: {stepping!r} needs steady fields (a dict), got a callable")
+    if split is None:
+        split = DEFAULT_SPLIT.get(stepping, DEFAULT_SPLIT["multirate"])
     if not (isinstance(split, (int, float)) and split >= 1):
         problems.append(f"split: must be a number >= 1, got {split!r}")
     if not (isinstance(tol, (int, float)) and 0 < tol < 1):
@@ -222,7 +232,7 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
 
 
 def _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl, outlet,
-           check_mass, on_frame=None, stepping="explicit", tol=1e-5, split=5.0):
+           check_mass, on_frame=None, stepping="explicit", tol=1e-5, split=None):
     """Core of :func:`solve` (inputs checked): the operators, then the frames.
 
     Steady fields use the fixed-step driver, time-dependent ones the adaptive one
@@ -265,11 +275,13 @@ def _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl
 
     interval = t_end / (frames - 1)
     est_steps = max(1, math.ceil(interval * op0.rate / cfl)) * (frames - 1)
+    if split is None:
+        split = DEFAULT_SPLIT.get(stepping, DEFAULT_SPLIT["multirate"])
     if stepping == "auto":
-        # IMEX where a few fast cells (next to a point orifice) set the explicit step
+        # multirate where a few fast cells (next to a point orifice) set the explicit step
         split = min(split, _implicit.auto_split(op0.faces, grid.spacing)) if steady and \
             est_steps > AUTO_IMEX_STEPS else 1.0
-        stepping = "imex" if split >= _implicit.MIN_SPLIT else "explicit"
+        stepping = "multirate" if split >= _implicit.MIN_SPLIT else "explicit"
     if stepping == "implicit":
         tracker = _FrameTracker(grid, P, t_end, frames, on_frame, progress, check_mass,
                                 every=1)
