@@ -451,7 +451,8 @@ def imex_result(result_cls, grid, f, P, outlet, interval, frames, tracker, *, op
             "substeps": box.substeps if box else 0,
             "diffusion": "implicit", "cfl": cfl, "split": split,
             "cells_implicit": int(fast.sum()), "dt": interval / stepper.n_sub,
-            "factorisations": imp.fac.count, "theta_min": imp.theta_min, "seconds_factorisation": imp.fac.seconds,
+            "factorisations": imp.fac.count, "theta_min": imp.theta_min,
+            "seconds_factorisation": imp.fac.seconds,
             "n_bad": imp.n_bad, "seconds": time.perf_counter() - t0}
     return result_cls(
         times=tracker.times, P=tracker.P, mass=tracker.mass, outflow=tracker.outflow,
