@@ -44,7 +44,7 @@ from typing import Callable, Mapping, Union
 import numba
 import numpy as np
 
-from . import _advection, _geometry, _timestepping
+from . import _advection, _geometry, _implicit, _timestepping
 from ._operator import _check_fields, _Operator, _rhs, _Workspace, required_fields
 from ._stepping import (_AdaptiveStepper, _FixedStepper, _FrameTracker, _implicit_step,
                         _rk_step)
@@ -57,6 +57,11 @@ __all__ = ["DIFFUSION_MODES", "Fields", "TracerResult", "required_fields", "solv
 Fields = Union[Mapping[str, np.ndarray], Callable[[float], Mapping[str, np.ndarray]]]
 
 DIFFUSION_MODES = ("auto", "explicit", "implicit")
+#: ``stepping="auto"`` uses multirate beyond this many explicit steps (steady fields)
+AUTO_IMEX_STEPS = 200_000
+#: default ``split`` of each mode: the largest measured to keep the explicit accuracy
+DEFAULT_SPLIT = {"imex": 5.0, "multirate": 10.0}
+STEPPING_MODES = ("explicit", "imex", "multirate", "implicit", "auto")
 
 
 @dataclass
@@ -104,7 +109,9 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
           time_scheme: str = "ssprk3", diffusion: str = "auto", cfl: float = 0.9,
           outlet: np.ndarray | None = None, check_mass: float = 1e-9,
           threads: int | None = None,
-          on_frame: Callable[[int, float, np.ndarray], None] | None = None) -> TracerResult:
+          on_frame: Callable[[int, float, np.ndarray], None] | None = None,
+          stepping: str = "explicit", tol: float = 1e-5,
+          split: float | None = None) -> TracerResult:
     """Evolve the tracer density ``P`` from ``P0`` over ``[0, t_end]``.
 
     Args:
@@ -142,6 +149,27 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
             is ``P0``) after its checks passed; the frames are then *not* kept
             (``TracerResult.P`` is ``None``), so memory does not grow with ``frames``.
             ``P`` is the solver's working array: copy or write it out, do not keep it.
+        stepping: ``"explicit"`` (default: SSP Runge-Kutta at the positivity limit),
+            ``"multirate"`` (steady fields only: the faces of the cells whose positivity
+            rate exceeds ``max(rate) / split``, next to a point orifice, are sub-stepped
+            explicitly on a small box, the rest stepped at about ``split`` times the
+            explicit step; diffusion implicit everywhere, second order), ``"imex"``
+            (the same, the fast faces implicit with the hybrid M-matrix operator of
+            :func:`solve_steady`: cheaper, first order along the flow there),
+            ``"implicit"`` (steady fields only: adaptive TR-BDF2 on the hybrid operator
+            everywhere, step sizes set by ``tol``, not by the CFL limit; first order
+            along the flow where the cell Peclet number exceeds 2; ``limiter``,
+            ``time_scheme``, ``diffusion``, ``cfl`` and ``threads`` are unused) or
+            ``"auto"``: ``"multirate"`` for steady fields when the explicit run would
+            take more than ``AUTO_IMEX_STEPS`` steps and fewer than 1 % of the moving
+            cells are 4 or more times faster than the rest (``split`` is then at most
+            that ratio), else ``"explicit"``. All are positive and conservative
+            (docs/long_runs.md).
+        tol: ``"implicit"``: local error per step, L1 relative to the initial mass, in
+            (0, 1).
+        split: ``"multirate"`` / ``"imex"``: ratio (>= 1) of the step to the explicit
+            CFL step; default ``DEFAULT_SPLIT`` (10 and 5: the largest that kept the
+            explicit accuracy of frames, outflow and P_height in the measurements).
 
     Returns:
         :class:`TracerResult`.
@@ -159,6 +187,21 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
         problems.append(f"t_end: must be a finite number > 0, got {t_end!r}")
     if not (0 < cfl <= 1):
         problems.append(f"cfl: must be in (0, 1], got {cfl!r}")
+    if stepping not in STEPPING_MODES:
+        problems.append(f"stepping: unknown mode {stepping!r}; valid choices: "
+                        f"{', '.join(STEPPING_MODES)}")
+    elif stepping in ("implicit", "imex", "multirate") and callable(fields):
+        problems.append(f"stepping: {stepping!r} needs steady fields (a dict), got a callable")
+    elif stepping in ("implicit", "imex", "multirate") and _geometry.special(grid):
+        problems.append(f"stepping: {stepping!r} is for Cartesian boxes; axisymmetric and "
+                        "hopper grids step explicitly (use 'explicit' or 'auto', or "
+                        "t_end = inf for the geometrical propagator)")
+    if split is None:
+        split = DEFAULT_SPLIT.get(stepping, DEFAULT_SPLIT["multirate"])
+    if not (isinstance(split, (int, float)) and split >= 1):
+        problems.append(f"split: must be a number >= 1, got {split!r}")
+    if not (isinstance(tol, (int, float)) and 0 < tol < 1):
+        problems.append(f"tol: must be in (0, 1), got {tol!r}")
     if diffusion not in DIFFUSION_MODES:
         problems.append(f"diffusion: unknown mode {diffusion!r}; valid choices: "
                         f"{', '.join(DIFFUSION_MODES)}")
@@ -191,16 +234,18 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
     numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
     try:
         if _geometry.special(grid):     # axisymmetric or hopper: Q = 2 pi r P on the twin
+            # the long-run schemes assemble the Cartesian operator: explicit stepping only
             return _geometry.solve(_solve, grid, fields, P, t_end, frames, progress, lim,
                                    scheme, diffusion, cfl, outlet, check_mass, on_frame)
         return _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl,
-                      outlet, check_mass, on_frame)
+                      outlet, check_mass, on_frame, stepping, tol, split)
     finally:
         numba.set_num_threads(saved)
 
 
 def _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl, outlet,
-           check_mass, on_frame=None, make_op=_Operator):
+           check_mass, on_frame=None, stepping="explicit", tol=1e-5, split=None,
+           make_op=_Operator):
     """Core of :func:`solve` (inputs checked): the operators (built by ``make_op``, the
     signature of :class:`._operator._Operator`), then the frames.
 
@@ -244,6 +289,28 @@ def _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl
 
     interval = t_end / (frames - 1)
     est_steps = max(1, math.ceil(interval * op0.rate / cfl)) * (frames - 1)
+    if split is None:
+        split = DEFAULT_SPLIT.get(stepping, DEFAULT_SPLIT["multirate"])
+    if stepping == "auto":
+        # multirate where a few fast cells (next to a point orifice) set the explicit step
+        split = min(split, _implicit.auto_split(op0.faces, grid.spacing)) if steady and \
+            est_steps > AUTO_IMEX_STEPS else 1.0
+        stepping = "multirate" if split >= _implicit.MIN_SPLIT else "explicit"
+    if stepping == "implicit":
+        tracker = _FrameTracker(grid, P, t_end, frames, on_frame, progress, check_mass,
+                                every=1)
+        return _implicit.result(TracerResult, grid, f0, P, outlet, interval, frames,
+                                tracker, tol=tol, dt0=cfl / op0.rate_explicit,
+                                rate=op0.rate_explicit, umax=op0.umax)
+    if stepping in ("imex", "multirate"):
+        op = _Operator(grid, f0, lim.code, outlet, implicit=True, p_scale=p_scale)
+        ws = _Workspace(grid, p_scale)
+        tracker = _FrameTracker(grid, P, t_end, frames, on_frame, progress, check_mass,
+                                every=max(1, int(est_steps / split) // 200))
+        return _implicit.imex_result(TracerResult, grid, f0, P, outlet, interval, frames,
+                                     tracker, op=op, scheme=scheme, ws=ws, split=split,
+                                     cfl=cfl, limiter=lim.name,
+                                     multirate=stepping == "multirate")
     ws = _Workspace(grid, p_scale)
     tracker = _FrameTracker(grid, P, t_end, frames, on_frame, progress, check_mass,
                             every=max(1, est_steps // 200))
@@ -265,5 +332,6 @@ def _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl
         mass_error=tracker.mass_error,
         outflow_by_boundary={"floor": budget[0], "sides": budget[1], "top": budget[2]},
         options={"limiter": lim.name, "time_scheme": scheme.name,
-                 "diffusion": "implicit" if implicit else "explicit", "cfl": cfl},
+                 "diffusion": "implicit" if implicit else "explicit", "cfl": cfl,
+                 "stepping": "explicit"},
     )

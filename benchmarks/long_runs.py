@@ -1,0 +1,275 @@
+"""Time to solution of long time-dependent tracer runs: explicit SSP-RK3 against implicit
+TR-BDF2 (issue 16, item 2), measured in the same run.
+
+Sections (each prints its times, the ratio and the accuracy):
+
+Schemes: ``explicit`` (today's default: WENO5, SSP-RK3, Strang-split implicit diffusion,
+``dt`` at the positivity limit of the fastest cell), ``imex`` (``stepping="imex"``,
+``--split`` 5: the fast cells next to the orifice implicit, ``dt`` 5 times larger) and
+``implicit`` (``stepping="implicit"``, adaptive TR-BDF2 on the hybrid operator, ``--tol``).
+
+* ``void`` (default): the void-model propagator of ``benchmarks/steady.py`` (280 x 320
+  cells, release 60 d up a point orifice) to ``t = 4e5`` with 41 frames.
+  - implicit: ``tracer.solve(..., stepping="implicit")`` for the whole run, timed;
+  - explicit (WENO5, SSP-RK3, implicit diffusion; today's default): timed on
+    ``[0, --t-cut]`` and **extrapolated** linearly to 4e5 (steady fields: a constant
+    number of steps per unit time), labelled as such; imex likewise on
+    ``[0, 20 t_cut]``;
+  - accuracy: ``P_height`` at 4e5 against the steady solve (``solve_steady``, the
+    drained limit of the same operator), the exit probabilities, and with
+    ``--time-error`` the time error (the same run with ``tol / 100``: L1 of
+    ``mass(t)``, ``outflow(t)``, ``P_height``).
+* ``--window T``: the same case on ``[0, T]`` with 5 frames, explicit and implicit both run
+  in full (T = 2000 takes 10-30 min explicit here): L1 distance of the frames, of
+  ``mass(t)`` and of ``P_height``.
+* ``--convergence``: a smaller void case (release 20 d up, 30 x 30 d) at h = 0.5, 0.25,
+  0.125, both schemes, against explicit WENO5 at h = 0.125 (the finer reference), to
+  ``t = --conv-t``: error of the frames, of ``outflow(t)`` and of ``P_height``.
+* ``--flagship``: ``cases/quasi2d_layers.toml`` as it is (t_end = 600, 13 frames), both
+  schemes, timed, and their distance (L1 of frames and ``P_height``); ``--flagship-ref``
+  adds explicit WENO5 at h = 0.125 as the finer reference.
+
+Run: ``python benchmarks/long_runs.py [--t-cut 20] [--window 2000] [--convergence]
+[--flagship [--flagship-ref]] [--only ...]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import pathlib
+import time
+import tomllib
+
+import numpy as np
+
+from steady import void_case
+
+from spotpde import tracer
+from spotpde.tracer import _advection, _implicit
+from spotpde._roundoff import clip_roundoff
+from spotpde.app import pipeline
+from spotpde.app.cases import load_case
+from spotpde.density import spot_density
+
+
+def setup(case):
+    grid = case.grid
+    rho = clip_roundoff(spot_density.solve(grid, case.orifice, case.spots))
+    return grid, pipeline.case_fields(case, rho), pipeline.initial_density(grid, case.tracer.start)
+
+
+def timed(fn):
+    t0 = time.perf_counter()
+    r = fn()
+    return time.perf_counter() - t0, r
+
+
+def l1(a, b, hv):
+    return float(np.abs(np.asarray(a) - np.asarray(b)).sum()) * hv
+
+
+def describe(name, t, r):
+    o = r.options
+    extra = (f", {o['factorisations']} LU ({o['seconds_factorisation']:.1f} s), "
+             f"{o['rejected_steps']} rejected, {o['fallback_steps']} backward-Euler, dt "
+             f"{o['dt_min']:.3g}..{o['dt_max']:.3g}" if o.get("stepping") == "implicit"
+             else f", {o['limiter']}, {o['time_scheme']}")
+    print(f"  {name:9s}: {t:9.2f} s, {r.steps} steps{extra}; mass error {r.mass_error:.1e}, "
+          f"min P {min(float(np.min(p)) for p in r.P) if r.P is not None else float('nan'):.1e}")
+
+
+def compare(name, a, b, grid):
+    """L1 distances of ``a`` from ``b`` (TracerResults on the same grid)."""
+    hv, hh = grid.cell_volume, grid.spacing ** (grid.dims - 1) * grid.spacing
+    frames = max(l1(pa, pb, hv) for pa, pb in zip(a.P, b.P)) if a.P is not None and \
+        b.P is not None else float("nan")
+    print(f"  {name}: max over frames L1(P) {frames:.2e}; max |mass| {np.abs(a.mass - b.mass).max():.2e}, "
+          f"max |outflow| {np.abs(a.outflow - b.outflow).max():.2e}; "
+          f"L1(P_height) {l1(a.P_height, b.P_height, hh):.2e} (of "
+          f"{float(np.abs(b.P_height).sum()) * hh:.3g})")
+
+
+def void(args):
+    case = void_case(280, 320)
+    grid, f, P0 = setup(case)
+    hv = grid.cell_volume
+    print(f"void model, point orifice, release 60 d up; {grid.shape[1]} x {grid.shape[0]} "
+          f"cells, h = {grid.spacing}; t_end = 4e5, 41 frames")
+    t_imp, ri = timed(lambda: tracer.solve(grid, f, P0, 4e5, 41, stepping="implicit",
+                                           tol=args.tol))
+    describe("implicit", t_imp, ri)
+    tracer.solve(grid, f, P0, 1.0, 2)                # numba compilation, not timed
+    t_cut, rc = timed(lambda: tracer.solve(grid, f, P0, args.t_cut, 2))
+    per_t = t_cut / args.t_cut
+    t_exp = per_t * 4e5
+    print(f"  explicit : {t_cut:9.2f} s for t = {args.t_cut:g} ({rc.steps} steps, "
+          f"{rc.options['limiter']}, {rc.options['time_scheme']}, {rc.options['diffusion']} "
+          f"diffusion); to 4e5 EXTRAPOLATED: {rc.steps / args.t_cut * 4e5:.3g} steps, "
+          f"{t_exp:.3g} s = {t_exp / 3600:.1f} h")
+    for mode, split in [("imex", s) for s in args.splits] + [("multirate", s) for s in
+                                                            args.multirate_splits]:
+        t_cut_imex = split * args.t_cut
+        tracer.solve(grid, f, P0, 10.0, 2, stepping=mode, split=split)   # warm-up
+        t_w, rm = timed(lambda: tracer.solve(grid, f, P0, t_cut_imex, 2, stepping=mode,
+                                             split=split))
+        t_imex = t_w / t_cut_imex * 4e5
+        print(f"  {mode:9s}: {t_w:9.2f} s for t = {t_cut_imex:g} ({rm.steps} steps, split "
+              f"{split:g}, dt {rm.options['dt']:.3g}, {rm.options['cells_implicit']} cells "
+              f"implicit); to 4e5 EXTRAPOLATED: {rm.steps / t_cut_imex * 4e5:.3g} steps, "
+              f"{t_imex:.3g} s = {t_imex / 3600:.2f} h; explicit / imex "
+              f"{t_exp / t_imex:.1f}x (both extrapolated)")
+    print(f"  time to 4e5, explicit (extrapolated) / implicit (run in full): "
+          f"{t_exp / t_imp:.0f}x   (target >= 10x)")
+    s = tracer.solve_steady(grid, f, P0)
+    hh = grid.spacing ** 2
+    ob = ri.outflow_by_boundary
+    print(f"  P_height(4e5) vs steady solve (drained limit of the same operator): L1 "
+          f"{l1(ri.P_height, s.P_height, hh):.2e}; mass left at 4e5 {ri.mass[-1]:.2e}; exits "
+          f"implicit floor {ob['floor']:.6f} sides {ob['sides']:.2e}; steady floor "
+          f"{s.exit['floor']:.6f} sides {s.exit['sides']:.2e}")
+    if not args.time_error:
+        return
+    t_ref, rr = timed(lambda: tracer.solve(grid, f, P0, 4e5, 41, stepping="implicit",
+                                           tol=args.tol / 100))
+    describe(f"tol/100", t_ref, rr)
+    print(f"  time error of tol = {args.tol:g} (against tol/100): max |mass| "
+          f"{np.abs(ri.mass - rr.mass).max():.2e}, max |outflow| "
+          f"{np.abs(ri.outflow - rr.outflow).max():.2e}, L1(P_height) "
+          f"{l1(ri.P_height, rr.P_height, hh):.2e}, max L1(P) over frames "
+          f"{max(l1(a, b, hv) for a, b in zip(ri.P, rr.P)):.2e}")
+
+
+def window(args):
+    case = void_case(280, 320)
+    grid, f, P0 = setup(case)
+    T = args.window
+    print(f"void model, window [0, {T:g}], 5 frames, both run in full")
+    t_imp, ri = timed(lambda: tracer.solve(grid, f, P0, T, 5, stepping="implicit", tol=args.tol))
+    describe("implicit", t_imp, ri)
+    t_mx, rm = timed(lambda: tracer.solve(grid, f, P0, T, 5, stepping="imex", split=args.split))
+    describe("imex", t_mx, rm)
+    t_exp, re = timed(lambda: tracer.solve(grid, f, P0, T, 5))
+    describe("explicit", t_exp, re)
+    print(f"  ratio explicit / implicit: {t_exp / t_imp:.1f}x, explicit / imex "
+          f"{t_exp / t_mx:.1f}x")
+    compare("implicit vs explicit", ri, re, grid)
+    compare("imex vs explicit", rm, re, grid)
+
+
+def small_void(h, T):
+    nx = int(round(30 / h))
+    return load_case({
+        "domain": {"dims": 2, "x": [-15.0, 15.0], "z": [0.0, 30.0], "spacing": h},
+        "orifice": {"x": 0.0, "width": 0.0, "rate": 1.2732},
+        "spots": {"b": 1.3},
+        "kernel": {"shape": "uniform", "size": 0.5, "volume": 0.7854, "rule": 1.0},
+        "tracer": {"model": "void", "start": {"x": 0.0, "z": 20.0, "width": 1.0},
+                   "t_end": T, "frames": 5}})
+
+
+def coarsen(P, m):
+    """Mean over m x m blocks (fine cell density to the coarse grid)."""
+    nz, nx = P.shape[-2:]
+    return P.reshape(P.shape[:-2] + (nz // m, m, nx // m, m)).mean(axis=(-3, -1))
+
+
+def convergence(args):
+    T = args.conv_t
+    print(f"void model, release 20 d up a point orifice, 30 x 30 d, t in [0, {T:g}] "
+          f"(5 frames); reference: explicit WENO5 at h = 0.125")
+    runs = {}
+    for h in (0.125, 0.25, 0.5):
+        grid, f, P0 = setup(small_void(h, T))
+        for name, kw in (("explicit", {}), ("imex", {"stepping": "imex", "split": args.split}),
+                         ("multirate", {"stepping": "multirate", "split": 10.0}),
+                         ("implicit", {"stepping": "implicit", "tol": args.tol})):
+            if name == "explicit":
+                tracer.solve(grid, f, P0, 1.0, 2)
+            t, r = timed(lambda: tracer.solve(grid, f, P0, T, 5, **kw))
+            runs[(h, name)] = (grid, t, r)
+            describe(f"{name} h={h}", t, r)
+    gref, _, ref = runs[(0.125, "explicit")]
+    for (h, name), (grid, t, r) in sorted(runs.items()):
+        if (h, name) == (0.125, "explicit"):
+            continue
+        m = int(round(h / 0.125))
+        Pref = [coarsen(p, m) for p in ref.P]
+        # P_height: mean over m columns of every m-th face row, at the coarse centres
+        fz = ref.P_height_faces[::m]
+        phr = coarsen(np.repeat(0.5 * (fz[:-1] + fz[1:]), m, axis=0), m) if m > 1 else ref.P_height
+        hv, hh = grid.cell_volume, grid.spacing ** 2
+        e_p = max(l1(a, b, hv) for a, b in zip(r.P, Pref))
+        e_o = np.abs(r.outflow - ref.outflow).max()
+        e_m = np.abs(r.mass - ref.mass).max()
+        e_h = l1(r.P_height, phr, hh)
+        print(f"  h = {h:5.3f} {name}: {t:8.2f} s; error vs reference: max L1(P) {e_p:.2e}, "
+              f"max |outflow| {e_o:.2e}, max |mass| {e_m:.2e}, L1(P_height) {e_h:.2e}")
+
+
+def flagship(args):
+    path = pathlib.Path(__file__).resolve().parent.parent / "cases" / "quasi2d_layers.toml"
+    raw = tomllib.loads(path.read_text())
+    case = load_case(raw)
+    grid, f, P0 = setup(case)
+    T, fr = case.tracer.t_end, case.tracer.frames
+    print(f"flagship (cases/quasi2d_layers.toml): {grid.shape[1]} x {grid.shape[0]} cells, "
+          f"t_end = {T:g}, {fr} frames")
+    tracer.solve(grid, f, P0, 1.0, 2)
+    t_exp, re = timed(lambda: tracer.solve(grid, f, P0, T, fr))
+    describe("explicit", t_exp, re)
+    t_imp, ri = timed(lambda: tracer.solve(grid, f, P0, T, fr, stepping="implicit", tol=args.tol))
+    describe("implicit", t_imp, ri)
+    t_mx, rm = timed(lambda: tracer.solve(grid, f, P0, T, fr, stepping="imex", split=args.split))
+    describe("imex", t_mx, rm)
+    ra = tracer.solve(grid, f, P0, T, fr, stepping="auto")
+    print(f"  auto chooses {ra.options['stepping']}; auto split here would be "
+          f"{_implicit.auto_split(_advection.face_velocities(f, grid.walls, np.ones(grid.shape[1:], bool)), grid.spacing):.2f}")
+    print(f"  ratio explicit / implicit: {t_exp / t_imp:.2f}x, explicit / imex {t_exp / t_mx:.2f}x")
+    compare("implicit vs explicit", ri, re, grid)
+    compare("imex vs explicit", rm, re, grid)
+    if args.flagship_ref:
+        raw["domain"]["spacing"] = 0.125
+        gf, ff, P0f = setup(load_case(raw))
+        t_ref, rf = timed(lambda: tracer.solve(gf, ff, P0f, T, fr))
+        describe("reference h=0.125", t_ref, rf)
+        hv, hh = grid.cell_volume, grid.spacing ** 2
+        Pref = [coarsen(p, 2) for p in rf.P]
+        fz = rf.P_height_faces[::2]
+        phr = coarsen(np.repeat(0.5 * (fz[:-1] + fz[1:]), 2, axis=0), 2)
+        for name, r in (("explicit", re), ("imex", rm), ("implicit", ri)):
+            print(f"  {name} error vs h = 0.125: max L1(P) "
+                  f"{max(l1(a, b, hv) for a, b in zip(r.P, Pref)):.2e}, L1(P_height) "
+                  f"{l1(r.P_height, phr, hh):.2e}, max |outflow| "
+                  f"{np.abs(r.outflow - rf.outflow).max():.2e}")
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--t-cut", type=float, default=20.0)
+    ap.add_argument("--tol", type=float, default=1e-5)
+    ap.add_argument("--split", type=float, default=5.0)
+    ap.add_argument("--splits", type=float, nargs="*", default=[5.0, 20.0],
+                    help="void section: IMEX splits to time")
+    ap.add_argument("--multirate-splits", type=float, nargs="*", default=[10.0, 20.0],
+                    help="void section: multirate splits to time")
+    ap.add_argument("--time-error", action="store_true",
+                    help="void section: also the implicit run with tol / 100")
+    ap.add_argument("--window", type=float, default=0.0)
+    ap.add_argument("--convergence", action="store_true")
+    ap.add_argument("--conv-t", type=float, default=400.0)
+    ap.add_argument("--flagship", action="store_true")
+    ap.add_argument("--flagship-ref", action="store_true")
+    ap.add_argument("--no-void", action="store_true", help="skip the default void section")
+    args = ap.parse_args()
+    if not args.no_void:
+        void(args)
+    if args.window > 0:
+        window(args)
+    if args.convergence:
+        convergence(args)
+    if args.flagship:
+        flagship(args)
+
+
+if __name__ == "__main__":
+    main()
