@@ -32,6 +32,9 @@ KERNEL_WALLS = ("renormalise", "truncate")
 #: Options of the tracer solver (``spotpde.tracer.solve``).
 LIMITERS = ("koren", "vanleer", "mc", "minmod", "weno5", "upwind")
 DIFFUSION_MODES = ("auto", "explicit", "implicit")
+#: ``tracer.stepping`` (``spotpde.tracer.STEPPING_MODES``): SSP Runge-Kutta at the CFL
+#: limit, or the long-run schemes of docs/long_runs.md.
+STEPPING_MODES = ("explicit", "multirate", "imex", "implicit", "auto")
 #: ``kernel.diffusivity``: the discrete model's passage diffusivity, or the paper's eq. Dp.
 DIFFUSIVITIES = ("passage", "mean-field")
 
@@ -47,7 +50,8 @@ DEFAULTS: dict[str, dict[str, Any]] = {
     "kernel": {"shape": "gaussian", "size": 1.0, "volume": 0.05, "height": None,
                "aspect": 1.0, "rule": 0.5, "walls": "renormalise"},
     "tracer": {"model": "spot", "start": None, "layers": None, "t_end": 100.0, "frames": 20,
-               "limiter": "weno5", "cfl": 0.9, "diffusion": "auto", "snapshots": "auto"},
+               "limiter": "weno5", "cfl": 0.9, "diffusion": "auto", "snapshots": "auto",
+               "stepping": "explicit", "split": None, "tol": 1e-5},
     "output": {"path": "out.nc"},
     # optional: cage breaking of a pair at a point of the flow (spotpde.pair, docs/pair.md)
     "pair": {"x": None, "z": None, "contact": 1.0, "separation": 2.0, "start": None,
@@ -422,7 +426,11 @@ class _Validator:
             "cfl": self.number("tracer.cfl", t["cfl"], gt=0, le=1),
             "diffusion": self.choice("tracer.diffusion", t["diffusion"], DIFFUSION_MODES),
             "snapshots": t["snapshots"],
+            "stepping": self.choice("tracer.stepping", t["stepping"], STEPPING_MODES),
+            "tol": self.number("tracer.tol", t["tol"], gt=0, lt=1),
         }
+        if t["split"] is not None:
+            out["split"] = self.number("tracer.split", t["split"], ge=1, limit=1e6)
         n = t["snapshots"]
         if n != "auto" and not (isinstance(n, int) and not isinstance(n, bool)
                                 and 2 <= n <= MAX_FRAMES):

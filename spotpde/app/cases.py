@@ -64,7 +64,7 @@ class Case:
         tracer: :class:`spotpde.parameters.Tracer`, or ``None`` without a ``[tracer]`` table.
         rule: lam, where along a spot step its influence is evaluated (1 for the void model).
         tracer_options: keyword options of ``spotpde.tracer.solve`` (``limiter``, ``cfl``,
-            ``diffusion``), empty without a tracer.
+            ``diffusion``, ``stepping``, ``tol``, ``split``), empty without a tracer.
         output_path: ``output.path`` resolved against the current directory.
     """
 
@@ -99,7 +99,8 @@ class Case:
         self.tracer = _tracer(data.get("tracer"), self.grid, self.orifice)
         t = data.get("tracer")
         self.tracer_options = ({} if t is None else
-                               {k: t[k] for k in ("limiter", "cfl", "diffusion")})
+                               {k: t[k] for k in ("limiter", "cfl", "diffusion", "stepping",
+                                                  "tol", "split") if k in t})
         volume = (k["height"] * _ellipsoid_measure(k["size"], k["aspect"], kernel_dims(d))
                   if "height" in k else k["volume"])
         self.kernel_spec = {"shape": k["shape"], "size": k["size"], "volume": volume,

@@ -92,10 +92,15 @@ def case_estimate(case) -> dict | None:
     """:func:`tracer_steps` for a case (computes its steady fields: cheap next to a run).
 
     Returns ``None`` without a tracer, for ``tracer.t_end = inf`` (one sparse solve),
-    and for transient spots (the fields change during the run).
+    for transient spots (the fields change during the run), and for the long-run schemes
+    (``tracer.stepping`` "multirate", "imex", "implicit": their steps are not the CFL's).
+    With ``"auto"`` the explicit estimate is an upper bound (auto switches to multirate
+    only for runs of more than 200 000 explicit steps).
     """
     t = case.tracer
     if t is None or math.isinf(t.t_end) or case.spots.mode == "transient":
+        return None
+    if case.tracer_options.get("stepping", "explicit") in ("multirate", "imex", "implicit"):
         return None
     from ..density import spot_density
     from .._roundoff import clip_roundoff
@@ -103,7 +108,9 @@ def case_estimate(case) -> dict | None:
     rho = clip_roundoff(np.asarray(spot_density.solve(case.grid, case.orifice, case.spots),
                                    dtype=float))
     fields = case_fields(case, rho)
-    return tracer_steps(case.grid, fields, t.t_end, t.frames, **case.tracer_options)
+    opts = {k: case.tracer_options[k] for k in ("limiter", "cfl", "diffusion")
+            if k in case.tracer_options}
+    return tracer_steps(case.grid, fields, t.t_end, t.frames, **opts)
 
 
 def describe(est: dict) -> str:
@@ -125,7 +132,8 @@ def refuse_if_long(case, est: dict | None, allow_long: bool = False) -> None:
     raise CaseError(f"{key}: the run would take about {_duration(est['seconds'])} "
                     f"({est['steps']:.3g} steps of dt = {est['dt']:.3g}), more than a day; "
                     f"shorten tracer.t_end, set tracer.t_end = inf for the geometrical "
-                    f"propagator (one solve), or pass --allow-long, got {value!r}")
+                    f"propagator (one solve), tracer.stepping = \"multirate\" or "
+                    f"\"implicit\" for long runs, or pass --allow-long, got {value!r}")
 
 
 def _duration(seconds: float) -> str:
