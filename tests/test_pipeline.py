@@ -128,7 +128,8 @@ def test_run_builds_the_contract_dataset(fakes, dims):
     assert names == ["spot_density.solve", "coefficients.particle_fields", "tracer.solve"]
     assert fakes[-1][1:3] == (2.0, 4)
     assert fakes[-1][3] == pytest.approx(1.0)       # P0 normalised
-    assert fakes[-1][4] == {"limiter": "weno5", "cfl": 0.9, "diffusion": "auto"}
+    assert fakes[-1][4] == {"limiter": "weno5", "cfl": 0.9, "diffusion": "auto",
+                            "stepping": "explicit", "tol": 1e-5}
 
 
 def test_v_kin_carries_the_flux_V1_Q0(fakes):
