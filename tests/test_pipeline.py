@@ -261,8 +261,12 @@ def test_tracer_options_match_the_tracer_solver():
 
     assert set(cases.LIMITERS) == set(_advection.LIMITERS)
     assert set(cases.DIFFUSION_MODES) == set(tracer.DIFFUSION_MODES)
+    assert set(cases.STEPPING_MODES) == set(tracer.STEPPING_MODES)
     case = load_case(small(tracer={"limiter": "upwind", "cfl": 0.5, "diffusion": "implicit"}))
-    assert case.tracer_options == {"limiter": "upwind", "cfl": 0.5, "diffusion": "implicit"}
+    assert case.tracer_options == {"limiter": "upwind", "cfl": 0.5, "diffusion": "implicit",
+                                   "stepping": "explicit", "tol": 1e-5}
+    case = load_case(small(tracer={"stepping": "multirate", "split": 8.0}))
+    assert case.tracer_options["stepping"] == "multirate" and case.tracer_options["split"] == 8.0
 
 
 def test_real_pipeline_with_spot_coefficient_profiles():

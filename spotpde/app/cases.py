@@ -37,6 +37,7 @@ from ._resources import (BASELINE_BYTES, MEMORY_FRACTION, auto_snapshots, availa
 from ._schema import (DEFAULTS, DIFFUSION_MODES, DIFFUSION_SCALINGS, DIFFUSIVITIES,
                       FLUX_SHAPES, KERNEL_SHAPES, KERNEL_WALLS, LAYERS_KEYS, LIMITERS,
                       MAX_FRAMES, MAX_LENGTH, NOISE_KEYS, PAIR_START_KEYS, PROFILE_KEYS,
+                      STEPPING_MODES,
                       RATE_TABLE_KEYS, START_KEYS, _ellipsoid_measure, _plain, _show,
                       kernel_dims,
                       _Validator)
@@ -45,7 +46,7 @@ __all__ = [
     "Case", "load_case", "validate", "dump_toml", "CaseError",
     "available_memory", "auto_snapshots", "estimate_bytes", "kernel_halfwidths",
     "DEFAULTS", "KERNEL_SHAPES", "KERNEL_WALLS", "LIMITERS", "DIFFUSION_MODES",
-    "DIFFUSIVITIES", "FLUX_SHAPES", "DIFFUSION_SCALINGS", "RATE_TABLE_KEYS",
+    "DIFFUSIVITIES", "STEPPING_MODES", "FLUX_SHAPES", "DIFFUSION_SCALINGS", "RATE_TABLE_KEYS",
     "PROFILE_KEYS", "NOISE_KEYS", "START_KEYS", "LAYERS_KEYS", "PAIR_START_KEYS",
     "MAX_LENGTH", "MAX_FRAMES", "MEMORY_FRACTION", "BASELINE_BYTES",
 ]
