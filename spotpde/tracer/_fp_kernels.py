@@ -32,8 +32,10 @@ from __future__ import annotations
 
 import functools
 
+import numba
 import numpy as np
 from numba import njit, prange, types
+from numba.np.ufunc import parallel as _parallel_backend
 from numba.core.errors import TypingError
 from numba.extending import overload
 
@@ -308,6 +310,14 @@ def _zero_row(g):
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+def _copy_row(src, dst):
+    """``dst[:] = src`` as a loop (a slice assignment compiles numba's shape-mismatch
+    error message, string formatting included, into the serial kernel)."""
+    for i in range(dst.shape[0]):
+        dst[i] = src[i]
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
 def _accumulate_row(Fk, acc, w):
     """``acc += w Fk`` (the vertical flux accumulator of ``P_height``)."""
     for i in range(Fk.shape[0]):
@@ -343,16 +353,57 @@ def _stage_row_cross(Fx, Fb, Ft, gpb, gpt, gmb, gmt, P0k, Pk, ca, cb, cc, tiny, 
         out[i] = 0.0 if abs(v) < tiny else v
 
 
+_fast_num_threads = getattr(_parallel_backend, "_get_num_threads", None)
+
+
+def _num_threads() -> int:
+    """``numba.get_num_threads()`` without its locks once the threading layer is up
+    (about 0.8 against 9 microseconds a call here: the kernel asks on every call)."""
+    if _fast_num_threads is not None and getattr(_parallel_backend, "_is_initialized", False):
+        return _fast_num_threads()
+    return numba.get_num_threads()
+
+
+class _ThreadDispatch:
+    """The 2D kernel of one reconstruction, compiled on first use in the variant the
+    caller's numba thread count needs: serial for one thread, ``parallel=True`` else.
+
+    Both run the same chunked loop (each chunk computes the same floating-point
+    operations in the same order, so the two variants agree to the bit,
+    tests/test_tracer_coldstart.py); a run on one thread (the default below 65536
+    cells, e.g. the flagship case) compiles only the serial one, which is half the
+    machine code and LLVM work of the parallel variant (docs/tracer.md, Performance).
+    """
+
+    __slots__ = ("limiter",)
+
+    def __init__(self, limiter: int):
+        self.limiter = limiter
+
+    def __call__(self, *args):
+        return _rhs_2d_variant(self.limiter, _num_threads() > 1)(*args)
+
+    def variant(self, parallel: bool):
+        """The compiled dispatcher of one variant (``parallel`` True or False)."""
+        return _rhs_2d_variant(self.limiter, bool(parallel))
+
+
 @functools.lru_cache(maxsize=None)
-def rhs_2d_kernel(limiter: int):
+def rhs_2d_kernel(limiter: int) -> _ThreadDispatch:
     """The 2D right-hand-side kernel specialised (and disk cached) for one reconstruction.
 
     The limiter code is a closure constant, so the compiler removes the branches of the
-    other reconstructions from the inner loops.
+    other reconstructions from the inner loops. Returns a callable with the signature
+    of ``rhs_2d`` below that compiles (lazily) only the serial or parallel variant in use.
     """
+    return _ThreadDispatch(limiter)
+
+
+@functools.lru_cache(maxsize=None)
+def _rhs_2d_variant(limiter: int, parallel: bool):
+    """The numba dispatcher of the 2D kernel for one reconstruction and one variant."""
     r = _reach(limiter)
 
-    @njit(parallel=True, cache=True, fastmath=FASTMATH, error_model="numpy")
     def rhs_2d(P, uxf, uzf, Axx, Azz, C, has_cross, eps, h, out, Fz_edge, Fz_acc, w_acc,
                P0, ca, cb, cc, tiny):
         """``R = dP/dt`` of the 2D Fokker-Planck equation (fused advection + explicit
@@ -417,9 +468,9 @@ def rhs_2d_kernel(limiter: int):
                     else:
                         _accumulate_row(Fk, Fz_acc[k], w_acc)
                     if k == 0:
-                        Fz_edge[0, :] = Fk
+                        _copy_row(Fk, Fz_edge[0])
                     elif k == nz:
-                        Fz_edge[1, :] = Fk
+                        _copy_row(Fk, Fz_edge[1])
             for kk in range(m):
                 k = k0 + kk
                 xface_row(P[k], uxf[k], Axx[k], Fx, ih, eps, limiter)
@@ -430,7 +481,10 @@ def rhs_2d_kernel(limiter: int):
                     _stage_row(Fx, Fz[kk], Fz[kk + 1], P0[k], P[k], ca, cb, cc, tiny, out[k],
                                ih)
 
-    return rhs_2d
+    # numba's disk cache keys a closure by qualified name, bytecode and closure values,
+    # not by its options: the two variants need two names
+    rhs_2d.__qualname__ += "_parallel" if parallel else "_serial"
+    return njit(parallel=parallel, cache=True, fastmath=FASTMATH, error_model="numpy")(rhs_2d)
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
