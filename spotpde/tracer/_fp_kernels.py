@@ -304,20 +304,6 @@ def _corner_row(Cb, Cc, Pb, Pc, gp, gm, ih2):
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
-def _zero_row(g):
-    for i in range(g.shape[0]):
-        g[i] = 0.0
-
-
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
-def _copy_row(src, dst):
-    """``dst[:] = src`` as a loop (a slice assignment compiles numba's shape-mismatch
-    error message, string formatting included, into the serial kernel)."""
-    for i in range(dst.shape[0]):
-        dst[i] = src[i]
-
-
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
 def _accumulate_row(Fk, acc, w):
     """``acc += w Fk`` (the vertical flux accumulator of ``P_height``)."""
     for i in range(Fk.shape[0]):
@@ -459,8 +445,9 @@ def _rhs_2d_variant(limiter: int, parallel: bool):
                     if k >= 1 and k <= nz - 1:
                         _corner_row(C[k - 1], C[k], P[k - 1], P[k], gp[kk], gm[kk], ih2)
                     else:
-                        _zero_row(gp[kk])
-                        _zero_row(gm[kk])
+                        for i in range(nx + 1):
+                            gp[kk, i] = 0.0
+                            gm[kk, i] = 0.0
                 if kk < m or k == nz:
                     # this chunk owns face row k (the chunk above owns its top row)
                     if has_cross:
@@ -468,9 +455,11 @@ def _rhs_2d_variant(limiter: int, parallel: bool):
                     else:
                         _accumulate_row(Fk, Fz_acc[k], w_acc)
                     if k == 0:
-                        _copy_row(Fk, Fz_edge[0])
+                        for i in range(nx):
+                            Fz_edge[0, i] = Fk[i]
                     elif k == nz:
-                        _copy_row(Fk, Fz_edge[1])
+                        for i in range(nx):
+                            Fz_edge[1, i] = Fk[i]
             for kk in range(m):
                 k = k0 + kk
                 xface_row(P[k], uxf[k], Axx[k], Fx, ih, eps, limiter)
@@ -573,4 +562,5 @@ def laplacian_5pt_serial(f, out):
     for k in range(1, nz - 1):
         for i in range(1, nx - 1):
             out[k, i] = f[k - 1, i] + f[k + 1, i] + f[k, i - 1] + f[k, i + 1] - 4.0 * f[k, i]
+
 
