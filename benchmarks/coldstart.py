@@ -17,12 +17,11 @@ Baseline, in the same run: ``python -c "import numpy, scipy, xarray"``, the bare
 interpreter with the libraries every run needs, so the start-up figures can be read
 against what the machine gives a process that does nothing of its own.
 
-``--kernel`` also times, in this process, the two compiled variants of the WENO5 2D
-tracer kernel on one thread (the serial one a one-thread run compiles, and the
-``parallel=True`` one, which was the only variant before) on the flagship's grid size,
-as a ratio measured in the same run: the serial variant must not be slower.
+``--compile`` then compiles the flagship's WENO5 2D tracer kernel (one thread) in this
+process with an empty cache, and prints its CPU time split by numba compilation and by
+LLVM module (optimisation and machine code): where a cold run's compile time goes.
 
-Usage: ``python benchmarks/coldstart.py [--cold N] [--warm N] [--kernel]`` (about a
+Usage: ``python benchmarks/coldstart.py [--cold N] [--warm N] [--compile]`` (about a
 minute per cold run here).
 """
 
@@ -71,55 +70,78 @@ def timed_run(cache: Path, out: Path) -> tuple[float, float, float, float]:
             os.getloadavg()[0])
 
 
-def kernel_ratio(repeat: int = 200) -> None:
-    """Serial against parallel variant of the WENO5 2D kernel, one thread, flagship grid."""
+def compile_breakdown(cache: Path) -> None:
+    """Compile the flagship's WENO5 2D tracer kernel in this process with an empty cache
+    and print where the CPU time goes: each numba compilation (inclusive of the functions
+    it compiles in turn) and the LLVM optimisation and machine-code passes per module."""
+    os.environ["NUMBA_CACHE_DIR"] = str(cache)     # read when numba is imported
     sys.path.insert(0, str(ROOT))
+    import collections
+
+    from llvmlite.binding import executionengine, newpassmanagers
+
+    compiles, open_ = [], {}
+
+    llvm = collections.defaultdict(float)
+
+    def timed(cls, name, label):
+        original = getattr(cls, name)
+
+        def wrapper(self, *args):
+            t = time.thread_time()
+            try:
+                return original(self, *args)
+            finally:
+                module = args[0].name if args and hasattr(args[0], "name") else ""
+                llvm[f"{label} {module[:48]}" if module else label] += time.thread_time() - t
+        setattr(cls, name, wrapper)
+
+    timed(newpassmanagers.ModulePassManager, "run", "optimise module")
+    timed(newpassmanagers.FunctionPassManager, "run", "optimise functions")
+    timed(executionengine.ExecutionEngine, "finalize_object", "machine code")
+    # numba binds some of these methods when it is imported: patch first
     import numba
     import numpy as np
+    from numba.core import event
 
     from spotpde.tracer import _fp_kernels as K
 
-    nz, nx = 240, 160
-    rng = np.random.default_rng(1)
-    P = 1e-3 * rng.random((nz, nx)) ** 4
-    ux = 0.3 * rng.standard_normal((nz, nx + 1))
-    uz = -np.abs(rng.standard_normal((nz + 1, nx)))
-    A = 0.01 * rng.random((nz, nx))
-    C = 0.002 * rng.standard_normal((nz, nx))
-    out = np.empty_like(P)
-    Fe = np.empty((2, nx))
-    Fa = np.zeros((nz + 1, nx))
-    saved = numba.get_num_threads()
+    class Compiles(event.Listener):
+        def on_start(self, e):
+            open_[id(e.data["dispatcher"]), str(e.data["args"])] = time.thread_time()
+
+        def on_end(self, e):
+            t = open_.pop((id(e.data["dispatcher"]), str(e.data["args"])), None)
+            if t is not None:
+                compiles.append((time.thread_time() - t, e.data["dispatcher"].py_func.__qualname__))
+
+    event.register("numba:compile", Compiles())
+    nz, nx = 40, 30
+    P = np.random.default_rng(0).random((nz, nx))
+    u = np.zeros((nz, nx + 1)), np.zeros((nz + 1, nx))
     numba.set_num_threads(1)
-    try:
-        kernel = K.rhs_2d_kernel(K.WENO5)
-        args = (P, ux, uz, A, A, C, True, 1e6, 0.25, out, Fe, Fa, 0.1, P, 0.0, 1.0, 1e-3, 0.0)
-        variants = {"serial": kernel.variant(False), "parallel": kernel.variant(True),
-                    "dispatch": kernel}
-        best = {k: float("inf") for k in variants}
-        for k, f in variants.items():
-            f(*args)                                 # compile / load
-        for _ in range(repeat):                      # interleaved: same machine state
-            for k, f in variants.items():
-                t = time.thread_time()
-                f(*args)
-                best[k] = min(best[k], time.thread_time() - t)
-    finally:
-        numba.set_num_threads(saved)
-    cells = nz * nx / 1e6
-    print(f"WENO5 2D kernel, {nz}x{nx}, 1 thread, best of {repeat} (CPU time): " + ", ".join(
-        f"{k} {cells / t:.0f} Mcell/s" for k, t in best.items()))
-    print(f"serial / parallel time = {best['serial'] / best['parallel']:.3f}; "
-          f"dispatch (what the solver calls) / serial = {best['dispatch'] / best['serial']:.3f}"
-          f"; load average {os.getloadavg()[0]:.2f}")
+    t0, c0 = time.perf_counter(), time.thread_time()
+    K.rhs_2d_kernel(K.WENO5)(P, u[0], u[1], P, P, 0.1 * P, True, 1.0, 0.25, np.empty_like(P),
+                             np.empty((2, nx)), np.zeros((nz + 1, nx)), 0.1, P, 0.0, 1.0,
+                             0.01, 0.0)
+    wall, cpu = time.perf_counter() - t0, time.thread_time() - c0
+    print(f"compiling the WENO5 2D kernel: {wall:.2f} s wall, {cpu:.2f} s CPU "
+          f"(load {os.getloadavg()[0]:.2f}); numba compilations, CPU s inclusive:")
+    for t, name in sorted(compiles, reverse=True)[:14]:
+        print(f"  {t:6.2f}  {name}")
+    machine = sum(v for k, v in llvm.items() if k.startswith("machine"))
+    print(f"LLVM: {sum(llvm.values()):.2f} s CPU ({machine:.2f} s machine code); the "
+          f"largest modules:")
+    for k, v in sorted(llvm.items(), key=lambda kv: -kv[1])[:8]:
+        print(f"  {v:6.2f}  {k}")
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cold", type=int, default=1, help="cold runs (each in a new cache)")
     parser.add_argument("--warm", type=int, default=2, help="warm runs (best is printed)")
-    parser.add_argument("--kernel", action="store_true",
-                        help="also time the serial and parallel kernel variants")
+    parser.add_argument("--compile", action="store_true",
+                        help="also break down the compilation of the tracer kernel")
     parser.add_argument("--keep", type=Path, help="write the cold run's output here")
     args = parser.parse_args()
     t0 = time.perf_counter()
@@ -135,14 +157,15 @@ def main() -> None:
     for name, runs in (("cold", colds), ("warm", warms)):
         for r in runs:
             print(f"{name:8s} {r[0]:10.2f} {r[1]:10.2f} {r[2]:8.2f} {r[3]:6.2f}")
-    cold = min(colds, key=lambda r: r[2])
     warm = min(warms, key=lambda r: r[1]) if warms else None
     print(f"baseline (import numpy, scipy, xarray): {base:.2f} s")
-    if warm is not None:
+    if warm is not None and colds:
+        cold = min(colds, key=lambda r: r[2])
         print(f"warm start / baseline = {warm[0] / base:.2f}x; cold cpu - warm cpu "
               f"(compilation and FFTW planning) = {cold[2] - min(r[2] for r in warms):.2f} s")
-    if args.kernel:
-        kernel_ratio()
+    if args.compile:
+        with tempfile.TemporaryDirectory(prefix="spotpde-compile-") as tmp:
+            compile_breakdown(Path(tmp))
 
 
 if __name__ == "__main__":

@@ -32,10 +32,8 @@ from __future__ import annotations
 
 import functools
 
-import numba
 import numpy as np
 from numba import njit, prange, types
-from numba.np.ufunc import parallel as _parallel_backend
 from numba.core.errors import TypingError
 from numba.extending import overload
 
@@ -304,6 +302,12 @@ def _corner_row(Cb, Cc, Pb, Pc, gp, gm, ih2):
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+def _zero_row(g):
+    for i in range(g.shape[0]):
+        g[i] = 0.0
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
 def _accumulate_row(Fk, acc, w):
     """``acc += w Fk`` (the vertical flux accumulator of ``P_height``)."""
     for i in range(Fk.shape[0]):
@@ -339,57 +343,16 @@ def _stage_row_cross(Fx, Fb, Ft, gpb, gpt, gmb, gmt, P0k, Pk, ca, cb, cc, tiny, 
         out[i] = 0.0 if abs(v) < tiny else v
 
 
-_fast_num_threads = getattr(_parallel_backend, "_get_num_threads", None)
-
-
-def _num_threads() -> int:
-    """``numba.get_num_threads()`` without its locks once the threading layer is up
-    (about 0.8 against 9 microseconds a call here: the kernel asks on every call)."""
-    if _fast_num_threads is not None and getattr(_parallel_backend, "_is_initialized", False):
-        return _fast_num_threads()
-    return numba.get_num_threads()
-
-
-class _ThreadDispatch:
-    """The 2D kernel of one reconstruction, compiled on first use in the variant the
-    caller's numba thread count needs: serial for one thread, ``parallel=True`` else.
-
-    Both run the same chunked loop (each chunk computes the same floating-point
-    operations in the same order, so the two variants agree to the bit,
-    tests/test_tracer_coldstart.py); a run on one thread (the default below 65536
-    cells, e.g. the flagship case) compiles only the serial one, which is half the
-    machine code and LLVM work of the parallel variant (docs/tracer.md, Performance).
-    """
-
-    __slots__ = ("limiter",)
-
-    def __init__(self, limiter: int):
-        self.limiter = limiter
-
-    def __call__(self, *args):
-        return _rhs_2d_variant(self.limiter, _num_threads() > 1)(*args)
-
-    def variant(self, parallel: bool):
-        """The compiled dispatcher of one variant (``parallel`` True or False)."""
-        return _rhs_2d_variant(self.limiter, bool(parallel))
-
-
 @functools.lru_cache(maxsize=None)
-def rhs_2d_kernel(limiter: int) -> _ThreadDispatch:
+def rhs_2d_kernel(limiter: int):
     """The 2D right-hand-side kernel specialised (and disk cached) for one reconstruction.
 
     The limiter code is a closure constant, so the compiler removes the branches of the
-    other reconstructions from the inner loops. Returns a callable with the signature
-    of ``rhs_2d`` below that compiles (lazily) only the serial or parallel variant in use.
+    other reconstructions from the inner loops.
     """
-    return _ThreadDispatch(limiter)
-
-
-@functools.lru_cache(maxsize=None)
-def _rhs_2d_variant(limiter: int, parallel: bool):
-    """The numba dispatcher of the 2D kernel for one reconstruction and one variant."""
     r = _reach(limiter)
 
+    @njit(parallel=True, cache=True, fastmath=FASTMATH, error_model="numpy")
     def rhs_2d(P, uxf, uzf, Axx, Azz, C, has_cross, eps, h, out, Fz_edge, Fz_acc, w_acc,
                P0, ca, cb, cc, tiny):
         """``R = dP/dt`` of the 2D Fokker-Planck equation (fused advection + explicit
@@ -445,9 +408,8 @@ def _rhs_2d_variant(limiter: int, parallel: bool):
                     if k >= 1 and k <= nz - 1:
                         _corner_row(C[k - 1], C[k], P[k - 1], P[k], gp[kk], gm[kk], ih2)
                     else:
-                        for i in range(nx + 1):
-                            gp[kk, i] = 0.0
-                            gm[kk, i] = 0.0
+                        _zero_row(gp[kk])
+                        _zero_row(gm[kk])
                 if kk < m or k == nz:
                     # this chunk owns face row k (the chunk above owns its top row)
                     if has_cross:
@@ -455,11 +417,9 @@ def _rhs_2d_variant(limiter: int, parallel: bool):
                     else:
                         _accumulate_row(Fk, Fz_acc[k], w_acc)
                     if k == 0:
-                        for i in range(nx):
-                            Fz_edge[0, i] = Fk[i]
+                        Fz_edge[0, :] = Fk
                     elif k == nz:
-                        for i in range(nx):
-                            Fz_edge[1, i] = Fk[i]
+                        Fz_edge[1, :] = Fk
             for kk in range(m):
                 k = k0 + kk
                 xface_row(P[k], uxf[k], Axx[k], Fx, ih, eps, limiter)
@@ -470,10 +430,7 @@ def _rhs_2d_variant(limiter: int, parallel: bool):
                     _stage_row(Fx, Fz[kk], Fz[kk + 1], P0[k], P[k], ca, cb, cc, tiny, out[k],
                                ih)
 
-    # numba's disk cache keys a closure by qualified name, bytecode and closure values,
-    # not by its options: the two variants need two names
-    rhs_2d.__qualname__ += "_parallel" if parallel else "_serial"
-    return njit(parallel=parallel, cache=True, fastmath=FASTMATH, error_model="numpy")(rhs_2d)
+    return rhs_2d
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
@@ -562,5 +519,4 @@ def laplacian_5pt_serial(f, out):
     for k in range(1, nz - 1):
         for i in range(1, nx - 1):
             out[k, i] = f[k - 1, i] + f[k + 1, i] + f[k, i - 1] + f[k, i + 1] - 4.0 * f[k, i]
-
 
