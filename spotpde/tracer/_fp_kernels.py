@@ -353,23 +353,24 @@ class _ThreadDispatch:
     """The 2D kernel of one reconstruction, compiled on first use in the variant the
     caller's numba thread count needs: serial for one thread, ``parallel=True`` else.
 
-    Both run the same chunked loop (each chunk computes the same floating-point
-    operations in the same order, so the two variants agree to the bit,
-    tests/test_tracer_coldstart.py); a run on one thread (the default below 65536
-    cells, e.g. the flagship case) compiles only the serial one, in about 3/4 of the CPU
-    time: ``parallel=True`` has LLVM optimise and emit the kernel body four times (the
-    kernel, the outlined gufunc and two gufunc wrappers). The serial variant works on
-    uncounted arrays (:func:`_borrowed`) and runs as fast on one thread (docs/tracer.md,
-    Performance).
+    Both run the same chunks with the same operations (the same bits,
+    tests/test_tracer_coldstart.py); a one-thread run (the default below 65536 cells)
+    compiles only the serial one, in about 2/3 of the CPU time: ``parallel=True`` has LLVM
+    optimise and emit the kernel body four times (kernel, gufunc, two gufunc wrappers).
     """
 
-    __slots__ = ("limiter",)
+    __slots__ = ("limiter", "_variants")
 
     def __init__(self, limiter: int):
         self.limiter = limiter
+        self._variants = [None, None]
 
     def __call__(self, *args):
-        return _rhs_2d_variant(self.limiter, _num_threads() > 1)(*args)
+        parallel = _num_threads() > 1
+        kernel = self._variants[parallel]
+        if kernel is None:
+            kernel = self._variants[parallel] = _rhs_2d_variant(self.limiter, parallel)
+        return kernel(*args)
 
     def variant(self, parallel: bool):
         """The compiled dispatcher of one variant (``parallel`` True or False)."""
