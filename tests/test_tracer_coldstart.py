@@ -2,7 +2,8 @@
 
 A run on one numba thread (the default below 65536 cells) compiles only the serial
 variant of ``spotpde.tracer._fp_kernels.rhs_2d_kernel``, which cuts about a third of the
-first-run compilation (docs/tracer.md, Performance); larger runs use the ``parallel=True`` variant.
+first-run compilation (docs/tracer.md, Performance); larger runs use the ``parallel=True``
+variant.
 Both evaluate each chunk of rows with the same floating-point operations, so a result
 must not depend on the thread count: every output array of one right-hand side and of
 one fused Runge-Kutta stage is compared bit for bit, for the default WENO5 and for Koren,
