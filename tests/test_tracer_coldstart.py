@@ -1,0 +1,63 @@
+"""The serial and parallel variants of the 2D tracer kernel give the same bits.
+
+A run on one numba thread (the default below 65536 cells) compiles only the serial
+variant of ``spotpde.tracer._fp_kernels.rhs_2d_kernel``, which cuts about a third of the
+first-run compilation (docs/tracer.md, Performance); larger runs use the ``parallel=True``
+variant.
+Both evaluate each chunk of rows with the same floating-point operations, so a result
+must not depend on the thread count: every output array of one right-hand side and of
+one fused Runge-Kutta stage is compared bit for bit, for the default WENO5 and for Koren,
+on grids with one and with several chunks, with and without the cross terms.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import pytest
+
+from spotpde.tracer import _fp_kernels as K
+from spotpde.tracer import _solve
+from spotpde.tracer._advection import LIMITERS
+
+from test_tracer_kernel import random_problem
+
+
+def outputs(op, P, grid, kernel, stage):
+    """(stage or R, floor/top fluxes, accumulated fluxes) of one call of ``kernel``."""
+    ws = _solve._Workspace(grid, P.max())
+    ws.Fz_acc[:] = 1.0
+    out = np.empty_like(P)
+    if stage:
+        P0, ca, cb, cc, tiny = 0.5 * P, 0.75, 0.25, 0.25 * 0.3 / op.rate, ws.tiny
+    else:
+        P0, ca, cb, cc, tiny = P, 0.0, 0.0, 1.0, 0.0
+    f = op.faces
+    kernel(P, f["x"], f["z"], op.Axx, op.Azz, op.C, op.k_cross, op.eps, op.h, out,
+           ws.Fz_edge, ws.Fz_acc, 0.7, P0, ca, cb, cc, tiny)
+    return out, ws.Fz_edge, ws.Fz_acc
+
+
+@pytest.mark.parametrize("name", ["weno5", "koren"])
+@pytest.mark.parametrize("nz,nx", [(5, 6), (97, 64)])
+@pytest.mark.parametrize("cross", [True, False])
+def test_serial_and_parallel_kernels_agree_to_the_bit(name, nz, nx, cross):
+    grid, f, P = random_problem(2, nz, nx, seed=nz * 100 + nx, cross=cross)
+    op = _solve._Operator(grid, f, LIMITERS[name].code, np.ones(grid.shape[1:], bool),
+                          implicit=False, p_scale=P.max())
+    assert op.k_cross == cross
+    dispatch = K.rhs_2d_kernel(LIMITERS[name].code)
+    saved = numba.get_num_threads()
+    try:
+        for stage in (False, True):
+            numba.set_num_threads(1)
+            serial = outputs(op, P, grid, dispatch.variant(False), stage)
+            # what the solver calls on one thread is the serial variant
+            called = outputs(op, P, grid, dispatch, stage)
+            numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+            parallel = outputs(op, P, grid, dispatch.variant(True), stage)
+            for s, c, p in zip(serial, called, parallel):
+                assert np.abs(s).max() > 0
+                assert s.tobytes() == c.tobytes() == p.tobytes()
+    finally:
+        numba.set_num_threads(saved)
