@@ -173,6 +173,28 @@ def _zero(v) -> bool:
     return v is None or (np.ndim(v) == 0 and float(v) == 0.0)
 
 
+def passage_excess(T: Mapping, D_s: Mapping, fields: Mapping, convolved, keys) -> dict:
+    """``D_p - D_mf`` by component (the passage drift's ``div(D_p - D_mf)``), d**2/time.
+
+    ``D_p = w^2 * (rho_s T)`` is ``fields[key]``; the mean-field part is ``w^2 *
+    (rho_s D_s)``: nothing where ``T`` is zero, all of ``D_p`` where ``D_s`` is, the
+    factor ``1 - D_s/T`` when both are constants, else ``convolved(key)`` (the transform
+    of ``rho_s (T - D_s)`` requested beside the fields).
+    """
+    diff = {}
+    for key in keys:
+        t, d = T[key], D_s[key]
+        if _zero(t):
+            continue
+        if _zero(d):
+            diff[key] = fields[key]
+        elif np.ndim(t) == 0 and np.ndim(d) == 0:
+            diff[key] = (1.0 - float(d) / float(t)) * fields[key]
+        else:
+            diff[key] = convolved(key)
+    return diff
+
+
 # -- coverage -------------------------------------------------------------------------------
 
 def _transpose(W: np.ndarray) -> np.ndarray:
@@ -410,17 +432,7 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots, kernel, lam: float,
     fields = {k: res.get(k, np.zeros(grid.shape)) for k in KEYS}
 
     if diffusivity == "passage":
-        diff = {}
-        for key in ("D_rr", "D_zz"):
-            t, d = T[key], D_s[key]
-            if _zero(t):
-                continue
-            if _zero(d):
-                diff[key] = fields[key]
-            elif np.ndim(t) == 0 and np.ndim(d) == 0:
-                diff[key] = (1.0 - float(d) / float(t)) * fields[key]
-            else:
-                diff[key] = res["diff_" + key]
+        diff = passage_excess(T, D_s, fields, lambda key: res["diff_" + key], ("D_rr", "D_zz"))
         dv = divergence(grid, diff, act)
         fields["u_r"] = fields["u_r"] + dv["r"]
         fields["u_z"] = fields["u_z"] + dv["z"]

@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _walls
-from ._axisymmetric import _zero, masked_derivative
+from ._axisymmetric import _zero, masked_derivative, passage_excess
 from .._roundoff import clip_roundoff
 from ..grid import DIFFUSIVITY_KEYS, DRIFT_KEYS, Grid
 
@@ -145,17 +145,8 @@ def particle_fields(grid: Grid, rho_s, spots, kernel, lam, tensor, diffusivity, 
     fields = {k: res[keys[k]] if k in keys else np.zeros(grid.shape)
               for k in DRIFT_KEYS[2] + DIFFUSIVITY_KEYS[2]}
     if diffusivity == "passage":
-        diff = {}
-        for key in ("D_xx", "D_zz"):
-            t, d = T[key], D_s[key]
-            if _zero(t):
-                continue
-            if _zero(d):
-                diff[key] = fields[key]
-            elif np.ndim(t) == 0 and np.ndim(d) == 0:
-                diff[key] = (1.0 - float(d) / float(t)) * fields[key]
-            else:
-                diff[key] = res[keys["diff_" + key]]
+        diff = passage_excess(T, D_s, fields, lambda key: res[keys["diff_" + key]],
+                              ("D_xx", "D_zz"))
         dv = divergence(grid, diff, act)
         fields["u_x"] = fields["u_x"] + dv["x"]
         fields["u_z"] = fields["u_z"] + dv["z"]
