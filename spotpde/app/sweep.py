@@ -22,6 +22,11 @@ numbers that are global attributes of a single run (``V1``, ``V2``, ``rule``) be
 variables over the swept dimensions. A member that failed is not dropped: its fields
 are NaN, ``status`` is 1 there, and the global attribute ``failed_members`` lists it by
 its parameters with the error message.
+
+An embedded cluster's workers never take a terminal's Ctrl-C. An interrupt (SIGINT,
+SIGTERM, SIGHUP) at any moment kills them at once and quietly, removes the temporary
+files of unfinished member writes and keeps the finished members; ``spotpde sweep`` then
+prints one line and exits with 128 + the signal (:mod:`._localdask`, docs/sweeps.md).
 """
 
 from __future__ import annotations
