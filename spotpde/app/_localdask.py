@@ -197,34 +197,39 @@ class LocalDask:
         levels = {name: logging.getLogger(name).level for name in QUIET_LOGGERS}
         for name in QUIET_LOGGERS:
             logging.getLogger(name).setLevel(logging.CRITICAL + 1)
-        with _silent_stderr():
-            with self._lock:
-                self._aborted = True
-                cluster, client = self.cluster, self.client
-            if cluster is not None:
+        try:
+            with _silent_stderr():
+                self._stop(directory)
+        finally:
+            for name, level in levels.items():
+                logging.getLogger(name).setLevel(level)
+            _restore_signals(handlers)
+
+    def _stop(self, directory: Path | None) -> None:
+        """:meth:`abort` once signals, loggers and standard error are quiet."""
+        with self._lock:
+            self._aborted = True
+            cluster, client = self.cluster, self.client
+        if cluster is not None:
+            try:
+                for nanny in list(cluster.workers.values()):
+                    nanny.close_gracefully(reason="spotpde: interrupted")   # no restart
+            except Exception:  # noqa: BLE001 - the cluster may be half built
+                pass
+        exempt = {_resource_tracker_pid()}
+        kill_and_wait([pid for pid, t in _children().items()
+                       if pid not in exempt and self._before.get(pid) != t])
+        if directory is not None:
+            for tmp in Path(directory).glob(MEMBER_TEMPORARIES):
                 try:
-                    for nanny in list(cluster.workers.values()):
-                        nanny.close_gracefully(reason="spotpde: interrupted")   # no restart
-                except Exception:  # noqa: BLE001 - the cluster may be half built
+                    tmp.unlink()
+                except OSError:
                     pass
-            exempt = {_resource_tracker_pid()}
-            ours = [pid for pid, t in _children().items()
-                    if pid not in exempt and self._before.get(pid) != t]
-            kill_and_wait(ours)
-            if directory is not None:
-                for tmp in Path(directory).glob(MEMBER_TEMPORARIES):
-                    try:
-                        tmp.unlink()
-                    except OSError:
-                        pass
-            if cluster is not None:
-                closer = threading.Thread(target=_close, args=(client, cluster),
-                                          name="spotpde: Dask close", daemon=True)
-                closer.start()
-                closer.join(ABORT_TIMEOUT)
-        for name, level in levels.items():
-            logging.getLogger(name).setLevel(level)
-        _restore_signals(handlers)
+        if cluster is not None:
+            closer = threading.Thread(target=_close, args=(client, cluster),
+                                      name="spotpde: Dask close", daemon=True)
+            closer.start()
+            closer.join(ABORT_TIMEOUT)
 
 
 def before_exit() -> None:
