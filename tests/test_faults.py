@@ -2,9 +2,9 @@
 
 Every command runs as ``python -m spotpde`` in a subprocess: exit statuses, the
 one-line messages on standard error, files left (or not left) behind, signals
-(SIGTERM, SIGHUP, SIGINT to a sweep's process group), ``resource.setrlimit`` for a full
-disk, a non-root user without a writable HOME, a read-only directory, and servers that
-are not Dask schedulers.
+(SIGTERM, SIGHUP; signals to a sweep are in test_sweep.py), ``resource.setrlimit`` for
+a full disk, a non-root user without a writable HOME, a read-only directory, and
+servers that are not Dask schedulers.
 """
 
 from __future__ import annotations
@@ -328,7 +328,7 @@ def test_plot_refuses_a_sweep_result_and_other_dimensions(result_dir, tmp_path):
     assert not (tmp_path / "sweep.png").exists() and not (tmp_path / "other.png").exists()
 
 
-# -- sweeps: schedulers that are not, a truncated member, Ctrl-C ------------------------------
+# -- sweeps: schedulers that are not, a truncated member (Ctrl-C: test_sweep.py) ------------
 
 def test_scheduler_that_is_not_an_address(result_dir):
     proc = cli("sweep", "c.toml", "--set", "spots.b=1,2", "-o", "s.nc", "--scheduler",
@@ -396,30 +396,6 @@ def test_sweep_recomputes_a_truncated_member(result_dir, tmp_path):
     redone = sio.read_netcdf(tmp_path / "s.nc")
     np.testing.assert_allclose(redone["rho_s"].values, reference["rho_s"].values)
     assert redone["rho_s"].dims[:1] == ("spots_b",)
-
-
-@pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason=(
-    "open: whether Ctrl-C lands in the parent's LocalCluster start-up, in a worker or in "
-    "the running sweep depends on timing (start-up takes 8-15 s here); in the last two "
-    "cases a Dask worker's KeyboardInterrupt or Client.__del__ at exit can still print a "
-    "traceback (issue 17, item 4)"))
-def test_ctrl_c_during_a_sweep_is_quiet(tmp_path):
-    # Ctrl-C (SIGINT to the whole process group, as a terminal sends it) during a sweep
-    (tmp_path / "long.toml").write_text(LONG)
-    env = dict(os.environ, PYTHONPATH=str(ROOT), SPOTPDE_CACHE_DIR=_CACHE)
-    proc = subprocess.Popen([sys.executable, "-m", "spotpde", "sweep", "long.toml", "--set",
-                             "spots.b=1,2", "-o", "l.nc", "--workers", "1"], cwd=tmp_path,
-                            env=env, stderr=subprocess.PIPE, text=True, start_new_session=True)
-    line = proc.stderr.readline()                   # "sweep 0/2 members finished"
-    assert "0/2" in line, line
-    time.sleep(8)                                   # the cluster is up and computing
-    os.killpg(proc.pid, signal.SIGINT)
-    err = proc.communicate(timeout=120)[1]
-    assert proc.returncode == 130, err
-    assert "Traceback" not in err, err
-    assert len(err.strip().splitlines()) <= 3, err
-    assert not (tmp_path / "l.nc").exists()
 
 
 # -- cases and the Python API ----------------------------------------------------------------

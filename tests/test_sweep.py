@@ -1,8 +1,16 @@
-"""Parameter sweeps on a Dask LocalCluster: product of values, combination, resume, failures."""
+"""Parameter sweeps on a Dask LocalCluster: product of values, combination, resume, failures,
+and signals at any moment of a ``spotpde sweep`` (real subprocesses)."""
 
 from __future__ import annotations
 
 import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,7 +19,11 @@ import xarray as xr
 import spotpde
 from spotpde.app import sweep
 from spotpde.app.cli import main
+from spotpde.app import io as sio
 from spotpde.errors import CaseError, NumericalError
+
+ROOT = Path(__file__).resolve().parents[1]
+_CACHE = tempfile.mkdtemp(prefix="spotpde-sweep-cache-")
 
 BASE = {
     "domain": {"dims": 2, "x": [-4.0, 4.0], "z": [0.0, 6.0], "spacing": 0.5},
@@ -117,3 +129,187 @@ def test_cli_sweep_and_bad_set(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "kernel.rule: " in err and "Traceback" not in err
     assert not (tmp_path / "bad.nc").exists()
+
+
+# -- signals: Ctrl-C, SIGTERM and SIGHUP at any moment of `spotpde sweep` ----------------------
+
+#: a member with a tracer: t_end = 1 takes seconds, 1e9 minutes (the one interrupted)
+LONG = """
+[domain]
+x = [-4.0, 4.0]
+z = [0.0, 8.0]
+spacing = 0.5
+
+[orifice]
+width = 2.0
+
+[tracer]
+start = { x = 0.0, z = 6.0, width = 1.0 }
+limiter = "upwind"
+t_end = 1.0
+frames = 3
+
+[output]
+path = "r.nc"
+"""
+
+
+def cli(*args, cwd):
+    env = dict(os.environ, PYTHONPATH=str(ROOT), SPOTPDE_CACHE_DIR=_CACHE)
+    return subprocess.run([sys.executable, "-m", "spotpde", *map(str, args)], cwd=cwd,
+                          env=env, capture_output=True, text=True, timeout=300)
+
+
+class _Sweep:
+    """``spotpde sweep`` in its own session (so that ``os.killpg`` reaches it and its
+    workers, as a terminal's Ctrl-C does), with SIGINT at its default disposition even
+    when the test runs in a background job; standard error is read line by line."""
+
+    def __init__(self, cwd, *args):
+        env = dict(os.environ, PYTHONPATH=str(ROOT), SPOTPDE_CACHE_DIR=_CACHE)
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "spotpde", "sweep", *map(str, args)], cwd=cwd, env=env,
+            stderr=subprocess.PIPE, text=True, start_new_session=True,
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+        self.lines: list[str] = []
+        self.reader = threading.Thread(target=self._read, daemon=True)
+        self.reader.start()
+        self.workers: list[int] = []
+
+    def _read(self):
+        for line in self.proc.stderr:
+            self.lines.append(line.rstrip("\n"))
+
+    def wait_for(self, condition, what, timeout=180):
+        deadline = time.monotonic() + timeout
+        while not condition():
+            assert self.proc.poll() is None, f"exited before {what}: {self.lines}"
+            assert time.monotonic() < deadline, f"no {what} within {timeout} s: {self.lines}"
+            time.sleep(0.02)
+
+    def line(self, text, timeout=180):
+        self.wait_for(lambda: any(text in l for l in self.lines), repr(text), timeout)
+
+    def children(self) -> list[int]:
+        import psutil
+
+        try:
+            return [c.pid for c in psutil.Process(self.proc.pid).children(recursive=True)]
+        except psutil.Error:
+            return []
+
+    def imports_numpy(self) -> bool:
+        try:
+            return "_multiarray_umath" in Path(f"/proc/{self.proc.pid}/maps").read_text()
+        except OSError:
+            return False
+
+    def spawns_a_worker(self) -> bool:
+        import psutil
+
+        for pid in self.children():
+            try:
+                if "spawn_main" in " ".join(psutil.Process(pid).cmdline()):
+                    return True
+            except psutil.Error:
+                pass
+        return False
+
+    def send(self, sig, group=True):
+        self.workers = self.children()
+        self.before = len(self.lines)
+        (os.killpg if group else os.kill)(self.proc.pid, sig)
+        self.proc.wait(timeout=60)          # a hang guard, not a speed check
+        self.reader.join(timeout=10)
+        return self.lines[self.before:]
+
+
+def _all_stopped(pids, timeout=10.0) -> bool:
+    import psutil
+
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        alive = []
+        for pid in pids:
+            try:
+                if psutil.Process(pid).status() != psutil.STATUS_ZOMBIE:
+                    alive.append(pid)
+            except psutil.Error:
+                pass
+        if not alive:
+            return True
+        time.sleep(0.05)
+    return False
+
+
+@pytest.fixture(scope="module")
+def tracer_cache(tmp_path_factory):
+    """numba's cache warmed for the tracer (a sweep member then takes seconds)."""
+    d = tmp_path_factory.mktemp("warm")
+    (d / "w.toml").write_text(LONG)
+    proc = cli("run", "w.toml", "-q", cwd=d)
+    assert proc.returncode == 0, proc.stderr
+
+
+#: where the signal lands: (name, signal, to the process group, the sweep's --set)
+SIGNAL_MOMENTS = [
+    ("importing", signal.SIGINT, True),       # the parent imports numpy, xarray, dask
+    ("cluster start-up", signal.SIGINT, True),  # just after "0/2": LocalCluster starting
+    ("worker start-up", signal.SIGINT, True),   # a worker process is being spawned
+    ("mid-sweep", signal.SIGINT, True),       # one member done, the other running
+    ("mid-sweep", signal.SIGTERM, False),     # `kill PID`
+    ("mid-sweep", signal.SIGHUP, True),       # the terminal hangs up
+    ("combining", signal.SIGINT, True),       # all members done: closing, combining, writing
+]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("moment, sig, group", SIGNAL_MOMENTS,
+                         ids=[f"{m}-{signal.Signals(s).name}" for m, s, _ in SIGNAL_MOMENTS])
+def test_ctrl_c_during_a_sweep_is_quiet(tracer_cache, tmp_path, moment, sig, group):
+    """A sweep stopped by a signal at any moment: status 128 + n, one line, no traceback,
+    no temporary file, no partial output, its workers gone, finished members kept (and
+    reused by a rerun)."""
+    (tmp_path / "long.toml").write_text(LONG)
+    quick, slow = "1.0", ("2.0" if moment == "combining" else "1.0e9")
+    # mid-sweep, two workers: one runs the long member, the other is idle (its event loop
+    # takes a signal at once: the traceback of the issue)
+    workers = "2" if moment == "mid-sweep" else "1"
+    sweep = _Sweep(tmp_path, "long.toml", "--set", f"tracer.t_end={quick},{slow}",
+                   "-o", "l.nc", "--workers", workers)
+    if moment == "importing":
+        sweep.wait_for(sweep.imports_numpy, "numpy imported")
+    elif moment == "cluster start-up":
+        sweep.line("0/2 members finished")
+    elif moment == "worker start-up":
+        sweep.wait_for(sweep.spawns_a_worker, "a worker process")
+    elif moment == "mid-sweep":
+        sweep.line("1/2 members finished")
+        time.sleep(0.5)
+    else:
+        sweep.line("2/2 members finished")
+    after = sweep.send(sig, group)
+    assert sweep.proc.returncode == 128 + sig, sweep.lines
+    err = "\n".join(sweep.lines)
+    assert "Traceback" not in err and "Error" not in err and "Warning" not in err, err
+    said = [l for l in after if "members finished" not in l]
+    assert len(said) == 1, err                 # one line: what happened, what is left
+    what = "interrupted" if sig == signal.SIGINT else f"terminated by signal {int(sig)}"
+    assert said[0].startswith(f"spotpde: {what}"), err
+    assert sorted(p.name for p in tmp_path.rglob("*") if p.name.endswith(".tmp")) == []
+    assert _all_stopped(sweep.workers), "worker processes outlived the sweep"
+    if said[0].endswith("no result written"):
+        # a signal after the rename but before the message could leave a complete file
+        assert moment == "combining" or not (tmp_path / "l.nc").exists()
+    else:
+        assert moment == "combining" and said[0].endswith("l.nc is complete"), err
+    if (tmp_path / "l.nc").exists():           # never a partial file
+        assert sio.read_netcdf(tmp_path / "l.nc")["status"].values.tolist() == [0, 0]
+    if moment == "mid-sweep":                  # the finished member is kept, complete
+        (member,) = (tmp_path / "l.nc.members").glob("member-*.nc")
+        assert "P" in sio.read_netcdf(member)
+    if moment == "mid-sweep" and sig == signal.SIGINT:   # a rerun reuses it
+        again = cli("sweep", "long.toml", "--set", f"tracer.t_end={quick}", "-o", "l.nc",
+                    cwd=tmp_path)
+        assert again.returncode == 0, again.stderr
+        assert again.stderr.splitlines()[0] == "spotpde: sweep 1/1 members finished"

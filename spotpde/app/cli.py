@@ -165,17 +165,43 @@ def cmd_plot(args) -> int:
 
 
 def cmd_sweep(args) -> int:
-    """``spotpde sweep CASE.toml --set KEY=V1,V2 ...``: 1 when a member failed."""
-    from .cases import load_case
-    from .sweep import parse_settings, sweep_case
+    """``spotpde sweep CASE.toml --set KEY=V1,V2 ...``: 1 when a member failed.
 
-    if args.workers is not None and args.workers < 1:
-        raise CaseError(f"--workers: must be >= 1, got {args.workers}")
-    settings = parse_settings(args.set or [])
-    case = load_case(args.case)
-    output = args.output if args.output is not None else case.output_path
-    _check_outputs([("output.path" if args.output is None else "-o", output, None)],
-                   inputs=[args.case])
+    Interrupted (SIGINT, SIGTERM, SIGHUP) at any moment, it stops its Dask workers at
+    once, keeps the finished members, removes every temporary file, prints one line and
+    exits with 128 + the signal (130 for Ctrl-C) through ``os._exit``, so that no
+    finaliser of distributed prints at interpreter exit (:mod:`spotpde.app._localdask`).
+    """
+    try:
+        return _sweep_command(args)
+    except KeyboardInterrupt as exc:
+        if not getattr(args, "command_line", False):    # main() called from Python
+            raise
+        from ._localdask import before_exit
+
+        status = _interrupted(args, exc)
+        before_exit()
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(status)
+
+
+def _sweep_command(args) -> int:
+    """:func:`cmd_sweep` without its handling of interrupts."""
+    from ._localdask import deferred_signals, import_libraries
+
+    with deferred_signals():    # a signal during the imports is acted upon after them
+        from .cases import load_case
+        from .sweep import parse_settings, sweep_case
+
+        if args.workers is not None and args.workers < 1:
+            raise CaseError(f"--workers: must be >= 1, got {args.workers}")
+        settings = parse_settings(args.set or [])
+        case = load_case(args.case)
+        output = args.output if args.output is not None else case.output_path
+        _check_outputs([("output.path" if args.output is None else "-o", output, None)],
+                       inputs=[args.case])
+        import_libraries()
 
     def progress(done: int, total: int) -> None:
         if not args.quiet:
@@ -184,6 +210,7 @@ def cmd_sweep(args) -> int:
     t0 = time.monotonic()
     ds = sweep_case(case, settings, output, scheduler=args.scheduler,
                     n_workers=args.workers, progress=progress)
+    args.written = os.path.abspath(output)
     _say(f"spotpde: wrote {os.path.abspath(output)} ({time.monotonic() - t0:.1f} s)")
     failed = ds.attrs.get("failed_members", "")
     if failed:
@@ -297,6 +324,16 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _interrupted(args, exc: KeyboardInterrupt) -> int:
+    """Say what an interrupt left (one line); returns the exit status, 130 or 128 + n."""
+    written = getattr(args, "written", None)
+    what = (f"terminated by signal {exc.signum}" if isinstance(exc, Terminated)
+            else "interrupted")
+    _say(f"spotpde: {what}; {written} is complete" if written else
+         f"spotpde: {what}, no result written")
+    return 128 + exc.signum if isinstance(exc, Terminated) else EXIT_INTERRUPTED
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``spotpde`` command.
 
@@ -311,6 +348,7 @@ def main(argv: list[str] | None = None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:   # --help, --version, usage errors (status 2)
         return int(exc.code or 0)
+    args.command_line = argv is None   # the process is this command (may os._exit)
     handle_termination()          # SIGTERM and SIGHUP: like Ctrl-C
     import warnings
 
@@ -324,12 +362,7 @@ def main(argv: list[str] | None = None) -> int:
         _say(f"spotpde: numerical failure, no result written: {err}")
         return EXIT_NUMERICAL
     except KeyboardInterrupt as exc:
-        written = getattr(args, "written", None)
-        what = (f"terminated by signal {exc.signum}" if isinstance(exc, Terminated)
-                else "interrupted")
-        _say(f"spotpde: {what}; {written} is complete" if written else
-             f"spotpde: {what}, no result written")
-        return 128 + exc.signum if isinstance(exc, Terminated) else EXIT_INTERRUPTED
+        return _interrupted(args, exc)
     except WriteError as err:     # disk full, file-size limit: nothing left behind
         _say(f"spotpde: {err}")
         return EXIT_NUMERICAL

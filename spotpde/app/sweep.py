@@ -22,10 +22,16 @@ numbers that are global attributes of a single run (``V1``, ``V2``, ``rule``) be
 variables over the swept dimensions. A member that failed is not dropped: its fields
 are NaN, ``status`` is 1 there, and the global attribute ``failed_members`` lists it by
 its parameters with the error message.
+
+An embedded cluster's workers never take a terminal's Ctrl-C. An interrupt (SIGINT,
+SIGTERM, SIGHUP) at any moment kills them at once and quietly, removes the temporary
+files of unfinished member writes and keeps the finished members; ``spotpde sweep`` then
+prints one line and exits with 128 + the signal (:mod:`._localdask`, docs/sweeps.md).
 """
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import hashlib
 import itertools
@@ -260,13 +266,13 @@ def _sweep(case, settings, todo_members, output, scheduler, n_workers, progress)
     if progress is not None:
         progress(done, len(paths))
     if todo:
-        for i, result in _run_on_dask(
-                [(todo_members[i][1].to_toml(), os.fspath(paths[i])) for i in todo],
-                scheduler, n_workers):
-            status[todo[i]] = result
-            done += 1
-            if progress is not None:
-                progress(done, len(paths))
+        tasks = [(todo_members[i][1].to_toml(), os.fspath(paths[i])) for i in todo]
+        with _dask_client(scheduler, n_workers, len(tasks), directory) as client:
+            for i, result in _run_on_dask(tasks, client):
+                status[todo[i]] = result
+                done += 1
+                if progress is not None:
+                    progress(done, len(paths))
 
     results = []
     for i, (values, _) in enumerate(todo_members):
@@ -277,42 +283,57 @@ def _sweep(case, settings, todo_members, output, scheduler, n_workers, progress)
     return ds
 
 
-def _run_on_dask(tasks: list[tuple[str, str]], scheduler, n_workers):
-    """Yield ``(task index, run_member result)`` as tasks finish."""
-    from distributed import Client, LocalCluster, as_completed
+def _run_on_dask(tasks: list[tuple[str, str]], client):
+    """Yield ``(task index, run_member result)`` as tasks finish on ``client``."""
+    from distributed import as_completed
 
-    import logging
+    futures = [client.submit(run_member, text, path, pure=False) for text, path in tasks]
+    index = {f.key: i for i, f in enumerate(futures)}
+    for future in as_completed(futures):
+        try:
+            result = future.result()
+        except Exception as exc:  # a worker died: report, do not drop
+            result = ("failed", f"{type(exc).__name__}: {exc}")
+        yield index[future.key], result
 
-    cluster = None
-    if scheduler is None:
-        workers = n_workers or min(os.cpu_count() or 1, len(tasks))
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.ERROR)
-        client = Client(cluster)
-    elif isinstance(scheduler, str):
-        client = connect(scheduler)
-    else:
-        client = scheduler
+
+@contextlib.contextmanager
+def _dask_client(scheduler, n_workers: int | None, n_tasks: int, directory: Path):
+    """The Client that runs the members: the user's (``scheduler`` an address or a
+    Client) or that of an embedded LocalCluster.
+
+    The LocalCluster's workers never receive a terminal's Ctrl-C; on KeyboardInterrupt
+    (SIGINT, or SIGTERM/SIGHUP as :class:`~spotpde.app._outputs.Terminated`) anywhere in
+    the block, its worker processes are killed at once and quietly and the temporary
+    files of their unfinished member writes removed (:mod:`._localdask`); finished
+    members stay in ``directory``.
+    """
+    from ._localdask import LocalDask
+
+    if scheduler is not None:
+        client = connect(scheduler) if isinstance(scheduler, str) else scheduler
+        try:
+            yield client
+        finally:
+            if client is not scheduler:
+                client.close()
+        return
+    local = LocalDask(n_workers or min(os.cpu_count() or 1, n_tasks))
+    interrupted = False
     try:
-        futures = [client.submit(run_member, text, path, pure=False) for text, path in tasks]
-        index = {f.key: i for i, f in enumerate(futures)}
-        for future in as_completed(futures):
-            try:
-                result = future.result()
-            except Exception as exc:  # a worker died: report, do not drop
-                result = ("failed", f"{type(exc).__name__}: {exc}")
-            yield index[future.key], result
+        yield local.start()
     except KeyboardInterrupt:
-        # Ctrl-C / SIGTERM: the workers are stopped with the cluster; their shutdown
-        # messages (dozens of lines of tracebacks) say nothing the user needs
-        for name in ("distributed", "tornado", "asyncio"):
-            logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+        interrupted = True
         raise
     finally:
-        if client is not scheduler:
-            client.close()
-        if cluster is not None:
-            cluster.close()
+        if interrupted:
+            local.abort(directory)
+        else:
+            try:
+                local.close()
+            except KeyboardInterrupt:
+                local.abort(directory)
+                raise
 
 
 def _handshake(address: str, timeout: float) -> None:
