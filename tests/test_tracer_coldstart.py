@@ -1,13 +1,17 @@
-"""The serial and parallel variants of the 2D tracer kernel give the same bits.
+"""The serial and parallel variants of the 2D tracer kernel agree to round-off.
 
 A run on one numba thread (the default below 65536 cells) compiles only the serial
 variant of ``spotpde.tracer._fp_kernels.rhs_2d_kernel``, which cuts about a third of the
 first-run compilation (docs/tracer.md, Performance); larger runs use the ``parallel=True``
 variant.
-Both evaluate each chunk of rows with the same floating-point operations, so a result
-must not depend on the thread count: every output array of one right-hand side and of
-one fused Runge-Kutta stage is compared bit for bit, for the default WENO5 and for Koren,
-on grids with one and with several chunks, with and without the cross terms.
+Both evaluate each chunk of rows with the same floating-point operations, but the kernels
+are compiled with fast-math reassociation and contraction, and LLVM may contract the two
+differently built functions (a plain loop, a gufunc body) differently: a fresh CI build
+differed in the last bit of one value in 6000. So every output array of one right-hand
+side and of one fused Runge-Kutta stage is compared to round-off (1e-13 of its largest
+value), for the default WENO5 and for Koren, on grids with one and with several chunks,
+with and without the cross terms; what the solver calls on one thread is the serial
+variant itself, bit for bit.
 """
 
 from __future__ import annotations
@@ -41,7 +45,7 @@ def outputs(op, P, grid, kernel, stage):
 @pytest.mark.parametrize("name", ["weno5", "koren"])
 @pytest.mark.parametrize("nz,nx", [(5, 6), (97, 64)])
 @pytest.mark.parametrize("cross", [True, False])
-def test_serial_and_parallel_kernels_agree_to_the_bit(name, nz, nx, cross):
+def test_serial_and_parallel_kernels_agree_to_round_off(name, nz, nx, cross):
     grid, f, P = random_problem(2, nz, nx, seed=nz * 100 + nx, cross=cross)
     op = _solve._Operator(grid, f, LIMITERS[name].code, np.ones(grid.shape[1:], bool),
                           implicit=False, p_scale=P.max())
@@ -57,7 +61,9 @@ def test_serial_and_parallel_kernels_agree_to_the_bit(name, nz, nx, cross):
             numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
             parallel = outputs(op, P, grid, dispatch.variant(True), stage)
             for s, c, p in zip(serial, called, parallel):
-                assert np.abs(s).max() > 0
-                assert s.tobytes() == c.tobytes() == p.tobytes()
+                scale = np.abs(s).max()
+                assert scale > 0
+                assert s.tobytes() == c.tobytes()
+                np.testing.assert_allclose(p, s, rtol=0, atol=1e-13 * scale)
     finally:
         numba.set_num_threads(saved)

@@ -353,8 +353,9 @@ class _ThreadDispatch:
     """The 2D kernel of one reconstruction, compiled on first use in the variant the
     caller's numba thread count needs: serial for one thread, ``parallel=True`` else.
 
-    Both run the same chunks with the same operations (the same bits,
-    tests/test_tracer_coldstart.py); a one-thread run (the default below 65536 cells)
+    Both run the same chunks with the same operations (the same values to round-off:
+    fast-math contraction may differ between the two builds, tests/test_tracer_coldstart.py);
+    a one-thread run (the default below 65536 cells)
     compiles only the serial one, in about 2/3 of the CPU time: ``parallel=True`` has LLVM
     optimise and emit the kernel body four times (kernel, gufunc, two gufunc wrappers).
     """
