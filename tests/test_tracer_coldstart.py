@@ -7,7 +7,7 @@ variant.
 Both evaluate each chunk of rows with the same floating-point operations, but the kernels
 are compiled with fast-math reassociation and contraction, and LLVM may contract the two
 differently built functions (a plain loop, a gufunc body) differently: a fresh CI build
-differed in the last bit of one value in 6000. So every output array of one right-hand
+differed in the last bits. So every output array of one right-hand
 side and of one fused Runge-Kutta stage is compared to round-off (1e-13 of its largest
 value), for the default WENO5 and for Koren, on grids with one and with several chunks,
 with and without the cross terms; what the solver calls on one thread is the serial
