@@ -264,3 +264,22 @@ def test_passage_keeps_the_mean_flow_of_the_mean_field(rule):
     for k in ("u_r", "u_z"):
         scale = np.abs(u["mean-field"][k]).max()
         np.testing.assert_allclose(u["passage"][k], u["mean-field"][k], rtol=0, atol=1e-12 * scale)
+
+
+def test_ring_weight_cache_failure_costs_only_the_computation(tmp_path, monkeypatch):
+    """A cache write that fails half-way (disk full) returns the weights and leaves no
+    temporary file in the cache directory."""
+    import numpy as np
+    from spotpde.fields import _rings
+
+    monkeypatch.setenv("SPOTPDE_CACHE_DIR", str(tmp_path))
+
+    def full_disk(fh, arr, allow_pickle=False):
+        fh.write(b"\x93NUMPY")
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(_rings.np, "save", full_disk)
+    expected = np.arange(6.0)
+    got = _rings._disk(("test-key", 1), lambda: expected)
+    assert got is expected
+    assert list((tmp_path / "rings").iterdir()) == []

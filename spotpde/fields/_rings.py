@@ -325,14 +325,22 @@ def _disk(key, compute):
     except (OSError, ValueError):
         pass
     out = compute()
+    tmp = None
     try:
         path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=".rings.", suffix=".npy", dir=path.parent)
         with os.fdopen(fd, "wb") as fh:
             np.save(fh, out, allow_pickle=False)
         os.replace(tmp, path)
-    except OSError:
+        tmp = None
+    except OSError:        # a full or read-only cache only costs the computation next time
         pass
+    finally:               # never leave a half-written file behind (disk full, Ctrl-C)
+        if tmp is not None:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
     return out
 
 
