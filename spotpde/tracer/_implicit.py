@@ -264,13 +264,9 @@ def result(result_cls, grid, f, P, outlet, interval, frames, tracker, *, tol, dt
     ``max_cfl = max(dt) rate`` and ``max_courant``, here well above 1."""
     stepper, faces, budget, info = run(grid, f, P, outlet, interval, frames, tracker,
                                        tol=tol, dt0=dt0)
-    return result_cls(
-        times=tracker.times, P=tracker.P, mass=tracker.mass, outflow=tracker.outflow,
-        P_height=0.5 * (faces[:-1] + faces[1:]), P_height_faces=faces,
-        steps=stepper.steps, max_cfl=stepper.max_dt * rate,
-        max_courant=stepper.max_dt * umax / grid.spacing, mass_error=tracker.mass_error,
-        outflow_by_boundary={"floor": budget[0], "sides": budget[1], "top": budget[2]},
-        options=info)
+    return tracker.result(result_cls, faces, budget, steps=stepper.steps,
+                          max_cfl=stepper.max_dt * rate,
+                          max_courant=stepper.max_dt * umax / grid.spacing, options=info)
 
 
 # ---------------------------------------------------------------------------------------
@@ -454,10 +450,6 @@ def imex_result(result_cls, grid, f, P, outlet, interval, frames, tracker, *, op
             "factorisations": imp.fac.count, "theta_min": imp.theta_min,
             "seconds_factorisation": imp.fac.seconds,
             "n_bad": imp.n_bad, "seconds": time.perf_counter() - t0}
-    return result_cls(
-        times=tracker.times, P=tracker.P, mass=tracker.mass, outflow=tracker.outflow,
-        P_height=0.5 * (faces[:-1] + faces[1:]), P_height_faces=faces,
-        steps=stepper.steps, max_cfl=stepper.max_cfl, max_courant=stepper.max_courant,
-        mass_error=tracker.mass_error,
-        outflow_by_boundary={"floor": budget[0], "sides": budget[1], "top": budget[2]},
-        options=info)
+    return tracker.result(result_cls, faces, budget, steps=stepper.steps,
+                          max_cfl=stepper.max_cfl, max_courant=stepper.max_courant,
+                          options=info)

@@ -325,13 +325,9 @@ def _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl
 
     faces = -ws.Fz_acc
     budget = stepper.budget
-    return TracerResult(
-        times=tracker.times, P=tracker.P, mass=tracker.mass, outflow=tracker.outflow,
-        P_height=0.5 * (faces[:-1] + faces[1:]), P_height_faces=faces,
-        steps=stepper.steps, max_cfl=stepper.max_cfl, max_courant=stepper.max_courant,
-        mass_error=tracker.mass_error,
-        outflow_by_boundary={"floor": budget[0], "sides": budget[1], "top": budget[2]},
+    return tracker.result(
+        TracerResult, faces, budget, steps=stepper.steps, max_cfl=stepper.max_cfl,
+        max_courant=stepper.max_courant,
         options={"limiter": lim.name, "time_scheme": scheme.name,
                  "diffusion": "implicit" if implicit else "explicit", "cfl": cfl,
-                 "stepping": "explicit"},
-    )
+                 "stepping": "explicit"})

@@ -221,3 +221,17 @@ class _FrameTracker:
             self.P[j] = P
         if self.progress is not None:
             self.progress(j / (self.frames - 1))
+
+    def result(self, result_cls, faces: np.ndarray, budget, *, steps: int, max_cfl: float,
+               max_courant: float, options: dict):
+        """The run packed as ``result_cls`` (:class:`spotpde.tracer.TracerResult`): the
+        frames, mass budget and checks kept here, ``P_height`` from the accumulated
+        downward face fluxes ``faces`` (cell value: the mean of its two faces), the exits
+        ``budget`` (floor, sides, top) and the stepper's statistics."""
+        return result_cls(
+            times=self.times, P=self.P, mass=self.mass, outflow=self.outflow,
+            P_height=0.5 * (faces[:-1] + faces[1:]), P_height_faces=faces,
+            steps=steps, max_cfl=max_cfl, max_courant=max_courant,
+            mass_error=self.mass_error,
+            outflow_by_boundary={"floor": budget[0], "sides": budget[1], "top": budget[2]},
+            options=options)
