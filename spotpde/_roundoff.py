@@ -20,6 +20,11 @@ def clip_roundoff(a: np.ndarray, rel: float = 1e-9) -> np.ndarray:
     Returns:
         ``a`` with its round-off negatives zeroed (``a`` itself when it has none).
     """
-    scale = float(np.max(np.abs(a))) if a.size else 0.0
+    lowest = a.min() if a.size else 0.0
+    if not lowest < 0:                   # nothing negative (or NaN: left alone)
+        return a
+    scale = max(float(a.max()), -float(lowest))
+    if lowest >= -rel * scale:           # every negative is round-off: three passes in all
+        return np.maximum(a, 0.0)
     tiny = (a < 0) & (a >= -rel * scale)
     return np.where(tiny, 0.0, a) if np.any(tiny) else a

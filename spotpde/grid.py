@@ -116,8 +116,22 @@ def derivative(f: np.ndarray, spacing: float, axis: int) -> np.ndarray:
         axis: the array axis to differentiate along.
     """
     n = f.shape[axis]
-    if n >= 3:
-        return np.gradient(f, spacing, axis=axis, edge_order=2)
+    if n >= 3:   # numpy.gradient's formulas, bit for bit, in fewer passes over the array
+        f = np.asarray(f, dtype=float)
+        out = np.empty_like(f)
+
+        def at(index):
+            i = [slice(None)] * f.ndim
+            i[axis] = index
+            return tuple(i)
+
+        inner = out[at(slice(1, -1))]
+        np.subtract(f[at(slice(2, None))], f[at(slice(0, -2))], out=inner)
+        np.divide(inner, 2.0 * spacing, out=inner)
+        a, b, c = -1.5 / spacing, 2.0 / spacing, -0.5 / spacing
+        out[at(0)] = a * f[at(0)] + b * f[at(1)] + c * f[at(2)]
+        out[at(-1)] = -c * f[at(-3)] - b * f[at(-2)] - a * f[at(-1)]
+        return out
     if n == 2:
         return np.gradient(f, spacing, axis=axis, edge_order=1)
     return np.zeros_like(f)

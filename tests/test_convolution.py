@@ -206,6 +206,33 @@ def test_wisdom_file_is_written_and_bad_files_are_harmless(tmp_path, monkeypatch
     assert _fft.save_wisdom() is False
 
 
+def test_plans_are_estimated_and_keep_no_wisdom_unless_asked_to_measure(tmp_path, monkeypatch):
+    """The default planner measures nothing, so it neither reads nor writes wisdom (a plan
+    measured on a loaded machine and kept would slow every later run); a measuring
+    planner keeps its wisdom. Both give the same sums."""
+    if not _fft.HAVE_PYFFTW:
+        pytest.fail("pyfftw is a declared dependency and must be importable")
+    monkeypatch.setenv("SPOTPDE_CACHE_DIR", str(tmp_path / "c"))
+    monkeypatch.delenv("SPOTPDE_FFTW_PLANNER")
+    monkeypatch.setattr(_fft, "_wisdom_loaded", False)
+    loaded = []
+    monkeypatch.setattr(_fft, "load_wisdom", lambda: loaded.append(1) or False)
+    assert _fft.planner() == "FFTW_ESTIMATE" and not _fft.measures()
+    rng = np.random.default_rng(5)
+    f, s = rng.normal(size=(37, 29)), rng.normal(size=(5, 3))
+    _fft.clear_plans()
+    estimated = convolve(f, s, backend="pyfftw")
+    assert not (tmp_path / "c" / "fftw_wisdom").exists() and not loaded
+    monkeypatch.setenv("SPOTPDE_FFTW_PLANNER", "FFTW_MEASURE")
+    assert _fft.measures()
+    _fft.clear_plans()
+    measured = convolve(f, s, backend="pyfftw")
+    assert (tmp_path / "c" / "fftw_wisdom").exists() and loaded
+    _fft.clear_plans()
+    np.testing.assert_allclose(measured, estimated, rtol=0, atol=1e-12 * np.abs(direct(f, s)).max())
+    np.testing.assert_allclose(estimated, direct(f, s), rtol=0, atol=1e-12 * np.abs(direct(f, s)).max())
+
+
 def test_falls_back_to_scipy_without_pyfftw(monkeypatch):
     rng = np.random.default_rng(12)
     f, s = rng.normal(size=(13, 16)), rng.normal(size=(5, 7))

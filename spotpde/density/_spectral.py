@@ -113,7 +113,7 @@ def steady_flux(grid: Grid, orifice: Orifice, b: float, Q0: float = 1.0,
     k2 = k1 if grid.dims == 2 else k1[:, None] + k1[None, :]
     half = np.where(np.arange(n) == 0, 1.0, 0.5)
     if grid.dims == 2:
-        c = mode_profile(k1[None, :n], zeta[:, None], b, b_par, H) * a[None, :]
+        c = _live_modes(k1[:n], zeta, b, b_par, H) * a[None, :]
     elif b_par == 0:            # separable: exp(-b (kx^2 + ky^2) z) = product
         decay = np.exp(-b * zeta[:, None] * k1[None, :n])
         c = a[None, :, :] * decay[:, :, None] * decay[:, None, :]
@@ -129,6 +129,31 @@ def steady_flux(grid: Grid, orifice: Orifice, b: float, Q0: float = 1.0,
     if grid.dims == 2:
         return scipy.fft.dct(c, type=3, axis=-1, workers=WORKERS, overwrite_x=True)
     return scipy.fft.dctn(c, type=3, axes=(1, 2), workers=WORKERS, overwrite_x=True)
+
+
+#: ``exp(-UNDERFLOW_EXPONENT)`` is below the smallest double: a mode decayed that far is 0
+UNDERFLOW_EXPONENT = 746.0
+
+
+def _live_modes(k2: np.ndarray, zeta: np.ndarray, b: float, b_par: float, H: float,
+                rows: int = 32) -> np.ndarray:
+    """``mode_profile(k2[None, :], zeta[:, None], ...)``, skipping modes that underflow.
+
+    Mode ``k`` at height ``zeta`` is at most ``2 exp(-decay_rate(k) zeta)`` (both terms of
+    :func:`mode_profile` are bounded by it), which is 0 in double precision once the
+    exponent passes ``UNDERFLOW_EXPONENT``; higher up ever fewer modes survive (``k`` up to
+    ``sqrt(746 / (b zeta))``), so blocks of ``rows`` rows evaluate only their first row's
+    surviving modes. Equal to the full evaluation to within the smallest subnormal.
+    """
+    rate = decay_rate(k2, b, b_par)
+    out = np.zeros((zeta.size, k2.size))
+    for start in range(0, zeta.size, rows):
+        z = zeta[start:start + rows]
+        live = int(np.count_nonzero(rate * z[0] < UNDERFLOW_EXPONENT))
+        if live:
+            out[start:start + rows, :live] = mode_profile(k2[None, :live], z[:, None], b,
+                                                          b_par, H)
+    return out
 
 
 def _fold_modes(c: np.ndarray, n: int, naxes: int) -> np.ndarray:

@@ -512,7 +512,8 @@ def keep_flux_velocity(grid, rho_s, D_s, D_source, kernel, fields: dict, phi=Non
         diff.update({key: res[k] for key, k in keys_.items()})
     div = divergence(grid, diff)
     for a in _COMPONENTS[grid.dims]:
-        fields[f"u_{a}"] = fields[f"u_{a}"] + div[a]
+        u = fields[f"u_{a}"]
+        fields[f"u_{a}"] = np.add(u, div[a], out=div[a])     # a new array, u untouched
 
 
 def add_pair_correction(grid, rho_s, spots, kernel, r1, r2, spot_diffusivity_tensor, lam,

@@ -39,13 +39,15 @@ from __future__ import annotations
 from typing import Mapping
 
 import numpy as np
+import scipy.fft
 import scipy.integrate
 import scipy.signal
 
 from ..grid import Grid
 
 __all__ = ["WALL_TREATMENTS", "check_walls", "renormalises", "coverage", "face_value",
-           "renormalised_fields", "cutoff_marginal", "coverage_table"]
+           "renormalised_fields", "renormalised_constant_fields", "cutoff_marginal",
+           "coverage_table"]
 
 #: ``"renormalise"`` (default): a spot's influence is divided by the fraction ``phi`` of its
 #: kernel inside the material, so every step displaces ``V1 dR``; ``"truncate"``: the part
@@ -96,7 +98,8 @@ def coverage(grid: Grid, kernel, mask: np.ndarray | None = None) -> np.ndarray:
             material (``phi`` then depends on the horizontal coordinates only).
 
     Returns:
-        grid-shaped array, dimensionless, in ``(0, 1]``.
+        grid-shaped array, dimensionless, in ``(0, 1]`` (without ``mask`` a read-only
+        broadcast of one horizontal layer).
 
     Raises:
         ValueError: ``mask`` of the wrong shape, with values outside [0, 1], or leaving a
@@ -119,11 +122,12 @@ def coverage(grid: Grid, kernel, mask: np.ndarray | None = None) -> np.ndarray:
     padded = _pad(chi, widths, reflecting)
     # w even: sum_j s_j chi_(i+j) = sum_j s_j chi_(i-j), a 'valid' correlation = convolution
     phi = scipy.signal.fftconvolve(padded, stencil, mode="valid") / total
-    phi = np.broadcast_to(phi, grid.shape).copy()
-    inside = chi > 0 if mask is not None else np.ones(grid.shape, bool)
-    if np.any(phi[np.broadcast_to(inside, grid.shape)] <= 1e-12):
+    inside = chi > 0 if mask is not None else np.ones(phi.shape, bool)
+    if np.any(phi[np.broadcast_to(inside, phi.shape)] <= 1e-12):
         raise ValueError("mask: a material cell has no material within the kernel's reach")
-    return np.clip(phi, 1e-300, 1.0)
+    phi = np.clip(phi, 1e-300, 1.0)
+    # without a mask phi is one horizontal layer: a read-only view repeats it up the grid
+    return phi if mask is not None else np.broadcast_to(phi, grid.shape)
 
 
 def face_value(phi: np.ndarray, axis: int, side: int) -> np.ndarray:
@@ -245,3 +249,134 @@ def coverage_table(shape: str, size: float, size_v: float, amp: float,
     lo = np.maximum(x0 - xs, -rh)
     phi = np.where(hi > lo, (M(hi) - M(lo)) / M(rh), 0.0)
     return float(xs[0]), float(xs[1] - xs[0]), np.clip(phi, 1e-300, 1.0)
+
+
+# -- rectangular silos with constant coefficients: bulk transform + wall strips --------------
+
+def _wall_boxes(grid: Grid, half_widths) -> list[tuple[slice, ...]]:
+    """Disjoint boxes covering the cells within a stencil half-width of a reflecting side
+    wall (where ``phi < 1``; ``phi = 1`` elsewhere, the kernel being whole in the material)."""
+    boxes, shape = [], grid.shape
+    done = [slice(0, n) for n in shape]          # along axes already boxed: their interior
+    for axis in range(grid.dims - 1, 0, -1):     # x, then (3D) y
+        n, m = shape[axis], half_widths[axis]
+        lo, hi = min(m, n), max(min(m, n), n - m)
+        for sl in (slice(0, lo), slice(hi, n)):
+            box = list(done)
+            box[axis] = sl
+            if all(b.stop > b.start for b in box):
+                boxes.append(tuple(box))
+        done[axis] = slice(lo, hi)
+    return boxes
+
+
+def _box_derivative(f: np.ndarray, h: float, box, axis: int) -> np.ndarray:
+    """``grid.derivative(f, h, axis)[box]`` from the box widened by one cell along ``axis``."""
+    from ..grid import derivative
+
+    sl = box[axis]
+    lo, hi = max(0, sl.start - 1), min(f.shape[axis], sl.stop + 1)
+    wide = list(box)
+    wide[axis] = slice(lo, hi)
+    crop = [slice(None)] * f.ndim
+    crop[axis] = slice(sl.start - lo, sl.stop - lo)
+    if hi - lo < 3 <= f.shape[axis]:             # too thin for the same formulas: whole axis
+        wide[axis] = slice(0, f.shape[axis])
+        crop[axis] = sl
+    return derivative(f[tuple(wide)], h, axis)[tuple(crop)]
+
+
+def _box_convolutions(requests, stencils, shape) -> dict:
+    """Linear convolutions of sources supported on disjoint boxes, batched.
+
+    ``requests``: ``[(name, box, source on the box, stencil key), ...]``; ``stencils``: the
+    centred stencils by key; ``shape``: the grid's. Sources of one stencil and box shape
+    are stacked and transformed together (``scipy.signal.fftconvolve``, full): exact, and
+    cheap for boxes a few stencils thick. Returns ``{name: [(target slices, values),
+    ...]}``, each box widened by the stencil's half-widths and cut to the grid, to be added
+    with :func:`_add`.
+    """
+    groups: dict = {}
+    for i, (_, _, sub, key) in enumerate(requests):
+        groups.setdefault((key, sub.shape), []).append(i)
+    out: dict = {}
+    for (key, _), members in groups.items():
+        stencil = stencils[key]
+        axes = tuple(range(1, stencil.ndim + 1))
+        with scipy.fft.set_workers(_fft_threads()):
+            full = scipy.signal.fftconvolve(np.stack([requests[i][2] for i in members]),
+                                            stencil[None], mode="full", axes=axes)
+        for j, i in enumerate(members):
+            name, box = requests[i][:2]
+            dst, src = [], []
+            for sl, k_s, n, k in zip(box, stencil.shape, shape, full.shape[1:]):
+                start = sl.start - (k_s - 1) // 2              # grid index of full[0]
+                lo, hi = max(0, start), min(n, start + k)
+                dst.append(slice(lo, hi))
+                src.append(slice(lo - start, hi - start))
+            out.setdefault(name, []).append((tuple(dst), full[j][tuple(src)]))
+    return out
+
+
+def _fft_threads() -> int:
+    from ._fft import threads
+    return threads()
+
+
+def _add(target: np.ndarray, parts, factor: float) -> None:
+    for dst, values in parts:
+        target[dst] += factor * values
+
+
+def renormalised_constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping,
+                                 lam: float, conv, phi: np.ndarray,
+                                 D_source: Mapping | None = None) -> dict[str, np.ndarray]:
+    """:func:`renormalised_fields` of a rectangular silo with constant ``v_s``, ``D_s``, ``T``.
+
+    ``S / phi = S + S (1/phi - 1)`` for every source ``S``, and ``1/phi - 1`` (``1/phi^2 - 1``)
+    vanishes except within a stencil half-width of the reflecting side walls. So the fields
+    are the truncated ones of ``_constant.constant_fields`` (one transform of ``rho_s``
+    per stencil) plus the convolutions of the sources times ``1/phi - 1`` over those wall
+    strips (:func:`_box_convolution`)::
+
+        u_z   += -v_s  w   * (rho_s (1/phi - 1))
+        u_a   += 2 lam w   * (div_a(D_s rho_s) (1/phi - 1))
+        D^ab  += T^ab  w^2 * (rho_s (1/phi^2 - 1))
+
+    with ``div`` the same second-order differences as the general path (one-sided at the
+    walls). Equal to :func:`renormalised_fields` to round-off (``phi`` is 1 to round-off
+    away from the walls); whole-grid transforms drop from one per source to one per
+    stencil. Also returns ``"_G"`` and ``"_phi"``.
+    """
+    from ._constant import constant_fields
+    from .coefficients import _COMPONENTS, _is_zero, _pair
+
+    comps = _COMPONENTS[grid.dims]
+    h, hd = grid.spacing, grid.spacing**grid.dims
+    fields = constant_fields(grid, rho_s, v_s, D_s, lam, conv, D_source)
+    boxes = _wall_boxes(grid, [(k - 1) // 2 for k in conv.stencils[1].shape])
+    eps1 = [1.0 / phi[box] - 1.0 for box in boxes]
+    requests, factors = [], {}
+    if v_s != 0.0:
+        requests += [("u_z", box, rho_s[box] * e, 1) for box, e in zip(boxes, eps1)]
+        factors["u_z"] = -v_s * hd
+    for a in comps if lam != 0.0 else ():
+        coeffs = {b: float(D_s[_pair(a, b)]) for b in comps if not _is_zero(D_s[_pair(a, b)])}
+        if coeffs:
+            requests += [(f"div_{a}", box, e * sum(
+                d * _box_derivative(rho_s, h, box, grid.axes.index(b)) for b, d in coeffs.items()),
+                1) for box, e in zip(boxes, eps1)]
+            factors[f"div_{a}"] = 2.0 * lam * hd
+    T = D_s if D_source is None else D_source
+    p2, c2 = conv.use[2]
+    if any(not _is_zero(t) for t in T.values()):
+        requests += [("D", box, rho_s[box] * (1.0 / phi[box]**2 - 1.0), p2) for box in boxes]
+    parts = _box_convolutions(requests, conv.stencils, grid.shape)
+    for name, factor in factors.items():
+        _add(fields["u_z" if name == "u_z" else "u_" + name[4:]], parts.get(name, []), factor)
+    for key, t in T.items():
+        if not _is_zero(t):
+            _add(fields[key], parts.get("D", []), float(t) * c2 * hd)
+    fields["_G"] = {key: None if _is_zero(d) else rho_s * d for key, d in D_s.items()}
+    fields["_phi"] = phi
+    return fields

@@ -50,6 +50,7 @@ from . import _walls
 from ._pairs import (_as_point, _cross_integrals, _two_point_integrals, pair_diffusivity,
                      velocity_correlation)
 from ._wall_layer import _face_value, _wall_layer, add_wall_layer
+from ._constant import constant_fields
 from .._roundoff import clip_roundoff
 from ..grid import DIFFUSIVITY_KEYS, DRIFT_KEYS, Grid, derivative
 from ..parameters import Spots
@@ -181,13 +182,14 @@ def divergence(grid: Grid, tensor: Mapping[str, np.ndarray]) -> dict:
     comps = _COMPONENTS[grid.dims]
     out = {}
     for a in comps:
-        acc = np.zeros(grid.shape)
+        acc = None
         for b in comps:
             t = tensor.get(_pair(a, b))
             if _is_zero(t) or np.ndim(t) == 0:
                 continue
-            acc += _gradient(grid, np.asarray(t, dtype=float), b)
-        out[a] = acc
+            g = _gradient(grid, np.asarray(t, dtype=float), b)
+            acc = g if acc is None else acc + g
+        out[a] = np.zeros(grid.shape) if acc is None else acc
     return out
 
 
@@ -256,110 +258,6 @@ class _Convolutions:
                 if self.use[q][0] == p:
                     out[(n, q)] = done[n] * (hd * self.use[q][1])
         return out
-
-
-# -- constant coefficients: one convolution of rho_s -----------------------------------------
-
-def _boundary_planes(grid: Grid, rho_p: np.ndarray, comp: str) -> list[tuple[int, np.ndarray]]:
-    """Planes where the zero-extended central difference differs from ``np.gradient``.
-
-    On the grid padded by one cell, ``delta f = (f[i+1] - f[i-1]) / 2h`` of the zero-extended
-    ``rho_s`` equals the second-order ``np.gradient`` inside; they differ on the two
-    boundary cells (one-sided formula) and on the two ghost cells (where ``np.gradient``'s
-    field is zero). Returns ``[(padded index, delta - gradient on that plane), ...]``.
-    """
-    axis = _axis(grid, comp)
-    h = grid.spacing
-    n = rho_p.shape[axis] - 2
-    rho = rho_p[tuple(_inner_all(rho_p.ndim))]
-    g_p = np.pad(np.gradient(rho, h, axis=axis, edge_order=2), 1)
-    planes = []
-    for p in (0, 1, n, n + 1):
-        lo = np.take(rho_p, p - 1, axis=axis) if p >= 1 else 0.0
-        hi = np.take(rho_p, p + 1, axis=axis) if p <= n else 0.0
-        planes.append((p, (hi - lo) / (2.0 * h) - np.take(g_p, p, axis=axis)))
-    return planes
-
-
-def _inner_all(ndim: int) -> list[slice]:
-    return [slice(1, -1)] * ndim
-
-
-def _plane_convolution(stencil: np.ndarray, planes, axis: int, out_shape) -> np.ndarray:
-    """``sum_j stencil[j] c[o - j]`` for a field ``c`` supported on a few planes normal to ``axis``.
-
-    Args:
-        stencil: centred stencil (array order).
-        planes: ``[(padded index p, plane array over the other padded axes), ...]``.
-        axis: the planes' normal axis.
-        out_shape: the padded grid shape.
-
-    Returns:
-        array of ``out_shape`` (padded), the discrete convolution.
-    """
-    out = np.zeros(out_shape)
-    m = stencil.shape[axis] // 2
-    n_out = out_shape[axis]
-    for p, q in planes:
-        if not np.any(q):
-            continue
-        for o in range(max(0, p - m), min(n_out, p + m + 1)):
-            s = np.take(stencil, o - p + m, axis=axis)
-            if not np.any(s):
-                continue
-            if q.ndim == 1:
-                layer = scipy.signal.convolve(q, s, mode="same", method="direct")
-            else:
-                layer = scipy.signal.oaconvolve(q, s, mode="same")
-            idx = [slice(None)] * len(out_shape)
-            idx[axis] = o
-            out[tuple(idx)] += layer
-    return out
-
-
-def _constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, lam: float,
-                     conv: _Convolutions, D_source: Mapping | None = None) -> dict[str, np.ndarray]:
-    """``u_p`` and ``D_p`` for constant ``v_s`` and ``D_s`` from one convolution per stencil.
-
-    With constant coefficients ``w * div(D_s rho_s) = D_s^ab w * d_b rho_s``, and the
-    discrete convolution commutes with the central difference on the zero-extended field:
-    ``w * grad(rho_s) = delta(w * rho_s~) - w * c``, where ``c`` lives on the boundary and
-    ghost planes only (:func:`_boundary_planes`). So ``w * rho_s~`` on the grid padded by
-    one cell gives ``u_z``, every ``w * d_b rho_s`` and (``w**2`` proportional to ``w``, or one
-    more transform) ``D_p``; the plane terms are cheap 1D/2D convolutions. Identical to
-    the general path to round-off. ``D_source`` (default ``D_s``): the constant tensor
-    ``T`` of ``D_p = w^2 * (rho_s T)`` (the passage diffusivity's ``v_s b_eff``).
-    """
-    comps = _COMPONENTS[grid.dims]
-    h = grid.spacing
-    hd = h**grid.dims
-    rho_p = np.pad(rho_s, 1)
-    inner = tuple(_inner_all(grid.dims))
-    D_src = D_s if D_source is None else D_source
-    need_D = any(not _is_zero(d) for d in D_src.values())
-    k1 = conv.request("rho_padded", rho_p, 1)
-    k2 = conv.request("rho_padded", rho_p, 2) if need_D else None
-    res = conv.run()
-    c1 = res[k1]
-    fields = {f"u_{a}": np.zeros(grid.shape) for a in comps}
-    if v_s != 0.0:
-        fields["u_z"] = -v_s * c1[inner]
-    if lam != 0.0:
-        stencil = conv.stencils[1]
-        for b in comps:
-            coeffs = {a: D_s[_pair(a, b)] for a in comps if not _is_zero(D_s[_pair(a, b)])}
-            if not coeffs:
-                continue
-            axis = _axis(grid, b)
-            delta = (np.roll(c1, -1, axis=axis) - np.roll(c1, 1, axis=axis)) / (2.0 * h)
-            planes = _boundary_planes(grid, rho_p, b)
-            corr = hd * _plane_convolution(stencil, planes, axis, rho_p.shape)
-            w_grad = (delta - corr)[inner]
-            for a, d in coeffs.items():
-                fields[f"u_{a}"] += 2.0 * lam * float(d) * w_grad
-    for key, d in D_src.items():
-        fields[key] = float(d) * res[k2][inner] if not _is_zero(d) else np.zeros(grid.shape)
-    return fields
 
 
 def _assemble(grid: Grid, comps, u_terms: Mapping, D_terms: Mapping, D_s: Mapping,
@@ -533,11 +431,15 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
     if _walls.renormalises(grid, walls):
         # free-volume-conserving walls: sources divided by phi (u_p) and phi^2 (D_p)
         phi = _walls.coverage(grid, kernel, mask)
-        fields = _walls.renormalised_fields(grid, rho_s, v_s, D_s, lam, conv, phi, D_source)
+        if constant and mask is None and min(grid.shape) >= 3:   # phi < 1 by the walls only
+            fields = _walls.renormalised_constant_fields(grid, rho_s, float(v_s), D_s, lam,
+                                                         conv, phi, D_source)
+        else:
+            fields = _walls.renormalised_fields(grid, rho_s, v_s, D_s, lam, conv, phi, D_source)
         G = fields.pop("_G")
         fields.pop("_phi")
     elif constant and min(grid.shape) >= 3:
-        fields = _constant_fields(grid, rho_s, float(v_s), D_s, lam, conv, D_source)
+        fields = constant_fields(grid, rho_s, float(v_s), D_s, lam, conv, D_source)
         G = {key: None if _is_zero(d) else rho_s * d for key, d in D_s.items()}
     else:
         fields = _general_fields(grid, rho_s, v_s, D_s, lam, conv, D_source)
