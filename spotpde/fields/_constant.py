@@ -18,7 +18,29 @@ import scipy.signal
 
 from ..grid import Grid
 
-__all__ = ["constant_fields"]
+__all__ = ["constant_fields", "SpotFluxTensor"]
+
+
+class SpotFluxTensor(Mapping):
+    """``{"D_xx": rho_s D_s^xx or None, ...}`` for a constant ``D_s``, computed on access.
+
+    The wall layer reads only its wall values, and only for rules other than 1/2, so the
+    whole-grid products are formed when (and each time) a component is looked up.
+    """
+
+    def __init__(self, rho_s: np.ndarray, D_s: Mapping):
+        self.rho_s, self.D_s = rho_s, D_s
+
+    def __getitem__(self, key):
+        d = self.D_s[key]
+        zero = d is None or (np.ndim(d) == 0 and float(d) == 0.0)
+        return None if zero else self.rho_s * d
+
+    def __iter__(self):
+        return iter(self.D_s)
+
+    def __len__(self):
+        return len(self.D_s)
 
 
 def _axis(grid: Grid, comp: str) -> int:

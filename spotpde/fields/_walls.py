@@ -348,7 +348,7 @@ def renormalised_constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s:
     away from the walls); whole-grid transforms drop from one per source to one per
     stencil. Also returns ``"_G"`` and ``"_phi"``.
     """
-    from ._constant import constant_fields
+    from ._constant import SpotFluxTensor, constant_fields
     from .coefficients import _COMPONENTS, _is_zero, _pair
 
     comps = _COMPONENTS[grid.dims]
@@ -377,6 +377,6 @@ def renormalised_constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s:
     for key, t in T.items():
         if not _is_zero(t):
             _add(fields[key], parts.get("D", []), float(t) * c2 * hd)
-    fields["_G"] = {key: None if _is_zero(d) else rho_s * d for key, d in D_s.items()}
+    fields["_G"] = SpotFluxTensor(rho_s, D_s)
     fields["_phi"] = phi
     return fields

@@ -50,7 +50,7 @@ from . import _walls
 from ._pairs import (_as_point, _cross_integrals, _two_point_integrals, pair_diffusivity,
                      velocity_correlation)
 from ._wall_layer import _face_value, _wall_layer, add_wall_layer
-from ._constant import constant_fields
+from ._constant import SpotFluxTensor, constant_fields
 from .._roundoff import clip_roundoff
 from ..grid import DIFFUSIVITY_KEYS, DRIFT_KEYS, Grid, derivative
 from ..parameters import Spots
@@ -440,7 +440,7 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
         fields.pop("_phi")
     elif constant and min(grid.shape) >= 3:
         fields = constant_fields(grid, rho_s, float(v_s), D_s, lam, conv, D_source)
-        G = {key: None if _is_zero(d) else rho_s * d for key, d in D_s.items()}
+        G = SpotFluxTensor(rho_s, D_s)
     else:
         fields = _general_fields(grid, rho_s, v_s, D_s, lam, conv, D_source)
         G = fields.pop("_G")
