@@ -8,6 +8,9 @@ progress lines are read from its standard error): the script prints
 
 * ``start``: seconds from process start to the first progress line (imports, case
   validation: the time before the process computes anything);
+* ``fields``: seconds to the line ``particle fields 100%``: the spot density and the
+  coefficient fields computed, solver imports included (the run-time estimate is
+  printed there);
 * ``total``: wall time of the whole process;
 * ``cpu``: its CPU time (user + system, all threads): what the run costs on an idle
   machine, far less noisy than wall time on a shared one;
@@ -45,9 +48,9 @@ def _children_cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def timed_run(cache: Path, out: Path) -> tuple[float, float, float, float]:
+def timed_run(cache: Path, out: Path) -> tuple[float, float, float, float, float]:
     """One flagship run in a new process: (seconds to the first progress line, total,
-    CPU seconds, 1-minute load average at its end)."""
+    CPU seconds, 1-minute load average at its end, seconds to ``particle fields 100%``)."""
     env = dict(os.environ, SPOTPDE_CACHE_DIR=str(cache), NUMBA_CACHE_DIR=str(cache / "numba"),
                PYTHONPATH=str(ROOT), MPLBACKEND="Agg")
     cpu0 = _children_cpu()
@@ -55,19 +58,21 @@ def timed_run(cache: Path, out: Path) -> tuple[float, float, float, float]:
     proc = subprocess.Popen([sys.executable, "-m", "spotpde", "run", str(CASE), "-o",
                              str(out), "--plot"], stderr=subprocess.PIPE,
                             stdout=subprocess.DEVNULL, env=env, text=True)
-    start = None
+    start = fields = None
     lines = []
     for line in proc.stderr:
         lines.append(line)
         if start is None and line.startswith("spotpde:") and "%" in line:
             start = time.perf_counter() - t0
+        if fields is None and line.startswith("spotpde: particle fields 100%"):
+            fields = time.perf_counter() - t0
     proc.wait()
     total = time.perf_counter() - t0
     if proc.returncode != 0:
         sys.stderr.write("".join(lines[-20:]))
         raise SystemExit(f"flagship run failed with exit status {proc.returncode}")
     return (start if start is not None else total, total, _children_cpu() - cpu0,
-            os.getloadavg()[0])
+            os.getloadavg()[0], fields if fields is not None else total)
 
 
 def compile_breakdown(cache: Path) -> None:
@@ -153,10 +158,11 @@ def main() -> None:
         for i in range(args.cold):
             colds.append(timed_run(tmp / f"cache{i}", args.keep or tmp / "cold.nc"))
         warms = [timed_run(tmp / "cache0", tmp / "warm.nc") for _ in range(args.warm)]
-    print(f"{'':8s} {'start (s)':>10s} {'total (s)':>10s} {'cpu (s)':>8s} {'load':>6s}")
+    print(f"{'':8s} {'start (s)':>10s} {'fields (s)':>10s} {'total (s)':>10s} {'cpu (s)':>8s} "
+          f"{'load':>6s}")
     for name, runs in (("cold", colds), ("warm", warms)):
         for r in runs:
-            print(f"{name:8s} {r[0]:10.2f} {r[1]:10.2f} {r[2]:8.2f} {r[3]:6.2f}")
+            print(f"{name:8s} {r[0]:10.2f} {r[4]:10.2f} {r[1]:10.2f} {r[2]:8.2f} {r[3]:6.2f}")
     warm = min(warms, key=lambda r: r[1]) if warms else None
     print(f"baseline (import numpy, scipy, xarray): {base:.2f} s")
     if warm is not None and colds:
