@@ -57,7 +57,7 @@ def timed_run(cache: Path, out: Path) -> tuple[float, float, float, float, float
     t0 = time.perf_counter()
     proc = subprocess.Popen([sys.executable, "-m", "spotpde", "run", str(CASE), "-o",
                              str(out), "--plot"], stderr=subprocess.PIPE,
-                            stdout=subprocess.DEVNULL, env=env, text=True)
+                            stdout=subprocess.DEVNULL, env=env, text=True, cwd=ROOT)
     start = fields = None
     lines = []
     for line in proc.stderr:
@@ -144,7 +144,9 @@ def compile_breakdown(cache: Path) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cold", type=int, default=1, help="cold runs (each in a new cache)")
-    parser.add_argument("--warm", type=int, default=2, help="warm runs (best is printed)")
+    parser.add_argument("--warm", type=int, default=2,
+                        help="warm runs (with --cold 0 after an unreported run that fills "
+                             "the cache)")
     parser.add_argument("--compile", action="store_true",
                         help="also break down the compilation of the tracer kernel")
     parser.add_argument("--keep", type=Path, help="write the cold run's output here")
@@ -157,6 +159,8 @@ def main() -> None:
         tmp = Path(tmp)
         for i in range(args.cold):
             colds.append(timed_run(tmp / f"cache{i}", args.keep or tmp / "cold.nc"))
+        if not colds and args.warm:    # fill the cache first (not reported)
+            timed_run(tmp / "cache0", tmp / "warm.nc")
         warms = [timed_run(tmp / "cache0", tmp / "warm.nc") for _ in range(args.warm)]
     print(f"{'':8s} {'start (s)':>10s} {'fields (s)':>10s} {'total (s)':>10s} {'cpu (s)':>8s} "
           f"{'load':>6s}")

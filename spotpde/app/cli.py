@@ -120,17 +120,25 @@ def _run_libraries(case) -> None:
     """Import what ``spotpde run`` of ``case`` will use, so that it can be done inside
     :class:`~spotpde.app._localdask.deferred_signals`: the pipeline and io (xarray,
     netCDF4 and xarray's backends, found through entry points on first use), the spot
-    density, field and kinematic solvers, and the tracer."""
+    density, field (with the FFT convolution: pyfftw) and kinematic solvers, and the
+    tracer."""
     import importlib
 
     from ._localdask import import_libraries
 
     import_libraries(dask=False)
-    for name in ("spotpde.app.pipeline", "spotpde.density.spot_density",
-                 "spotpde.density.kinematic",
-                 "spotpde.fields.void" if case.model == "void" else "spotpde.fields.coefficients",
+    try:     # xarray's netCDF writer asks dask for its scheduler, and dask imports distributed
+        import distributed  # noqa: F401
+    except ImportError:
+        pass
+    particle = case.model != "void"
+    for name in ("spotpde.app.pipeline", "spotpde.app.estimate",
+                 "spotpde.density.spot_density", "spotpde.density.kinematic",
+                 "spotpde.fields.coefficients" if particle else "spotpde.fields.void",
+                 "spotpde.fields.convolution" if particle else None,   # pyfftw
                  "spotpde.tracer" if case.tracer is not None else None,
-                 "spotpde.density.traffic" if case.spots.rho_max is not None else None):
+                 "spotpde.density.traffic" if case.spots.rho_max is not None else None,
+                 "spotpde.pair" if case.data.get("pair") is not None else None):
         if name is not None:
             importlib.import_module(name)
 
