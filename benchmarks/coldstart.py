@@ -8,6 +8,9 @@ progress lines are read from its standard error): the script prints
 
 * ``start``: seconds from process start to the first progress line (imports, case
   validation: the time before the process computes anything);
+* ``fields``: seconds to the line ``particle fields 100%``: the spot density and the
+  coefficient fields computed, solver imports included (the run-time estimate is
+  printed there);
 * ``total``: wall time of the whole process;
 * ``cpu``: its CPU time (user + system, all threads): what the run costs on an idle
   machine, far less noisy than wall time on a shared one;
@@ -45,29 +48,31 @@ def _children_cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def timed_run(cache: Path, out: Path) -> tuple[float, float, float, float]:
+def timed_run(cache: Path, out: Path) -> tuple[float, float, float, float, float]:
     """One flagship run in a new process: (seconds to the first progress line, total,
-    CPU seconds, 1-minute load average at its end)."""
+    CPU seconds, 1-minute load average at its end, seconds to ``particle fields 100%``)."""
     env = dict(os.environ, SPOTPDE_CACHE_DIR=str(cache), NUMBA_CACHE_DIR=str(cache / "numba"),
                PYTHONPATH=str(ROOT), MPLBACKEND="Agg")
     cpu0 = _children_cpu()
     t0 = time.perf_counter()
     proc = subprocess.Popen([sys.executable, "-m", "spotpde", "run", str(CASE), "-o",
                              str(out), "--plot"], stderr=subprocess.PIPE,
-                            stdout=subprocess.DEVNULL, env=env, text=True)
-    start = None
+                            stdout=subprocess.DEVNULL, env=env, text=True, cwd=ROOT)
+    start = fields = None
     lines = []
     for line in proc.stderr:
         lines.append(line)
         if start is None and line.startswith("spotpde:") and "%" in line:
             start = time.perf_counter() - t0
+        if fields is None and line.startswith("spotpde: particle fields 100%"):
+            fields = time.perf_counter() - t0
     proc.wait()
     total = time.perf_counter() - t0
     if proc.returncode != 0:
         sys.stderr.write("".join(lines[-20:]))
         raise SystemExit(f"flagship run failed with exit status {proc.returncode}")
     return (start if start is not None else total, total, _children_cpu() - cpu0,
-            os.getloadavg()[0])
+            os.getloadavg()[0], fields if fields is not None else total)
 
 
 def compile_breakdown(cache: Path) -> None:
@@ -139,7 +144,9 @@ def compile_breakdown(cache: Path) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cold", type=int, default=1, help="cold runs (each in a new cache)")
-    parser.add_argument("--warm", type=int, default=2, help="warm runs (best is printed)")
+    parser.add_argument("--warm", type=int, default=2,
+                        help="warm runs (with --cold 0 after an unreported run that fills "
+                             "the cache)")
     parser.add_argument("--compile", action="store_true",
                         help="also break down the compilation of the tracer kernel")
     parser.add_argument("--keep", type=Path, help="write the cold run's output here")
@@ -152,17 +159,22 @@ def main() -> None:
         tmp = Path(tmp)
         for i in range(args.cold):
             colds.append(timed_run(tmp / f"cache{i}", args.keep or tmp / "cold.nc"))
+        if not colds and args.warm:    # fill the cache first (not reported)
+            timed_run(tmp / "cache0", tmp / "warm.nc")
         warms = [timed_run(tmp / "cache0", tmp / "warm.nc") for _ in range(args.warm)]
-    print(f"{'':8s} {'start (s)':>10s} {'total (s)':>10s} {'cpu (s)':>8s} {'load':>6s}")
+    print(f"{'':8s} {'start (s)':>10s} {'fields (s)':>10s} {'total (s)':>10s} {'cpu (s)':>8s} "
+          f"{'load':>6s}")
     for name, runs in (("cold", colds), ("warm", warms)):
         for r in runs:
-            print(f"{name:8s} {r[0]:10.2f} {r[1]:10.2f} {r[2]:8.2f} {r[3]:6.2f}")
+            print(f"{name:8s} {r[0]:10.2f} {r[4]:10.2f} {r[1]:10.2f} {r[2]:8.2f} {r[3]:6.2f}")
     warm = min(warms, key=lambda r: r[1]) if warms else None
     print(f"baseline (import numpy, scipy, xarray): {base:.2f} s")
+    if warm is not None:
+        print(f"warm start / baseline = {warm[0] / base:.2f}x")
     if warm is not None and colds:
         cold = min(colds, key=lambda r: r[2])
-        print(f"warm start / baseline = {warm[0] / base:.2f}x; cold cpu - warm cpu "
-              f"(compilation and FFTW planning) = {cold[2] - min(r[2] for r in warms):.2f} s")
+        print(f"cold cpu - warm cpu (compilation and FFTW planning) = "
+              f"{cold[2] - min(r[2] for r in warms):.2f} s")
     if args.compile:
         with tempfile.TemporaryDirectory(prefix="spotpde-compile-") as tmp:
             compile_breakdown(Path(tmp))

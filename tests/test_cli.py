@@ -65,7 +65,7 @@ def fake_dataset(case):
 
 @pytest.fixture
 def fake_run(monkeypatch):
-    def run(case, progress=None, *, path=None):
+    def run(case, progress=None, *, path=None, on_fields=None):
         for stage in pipeline.STAGES:
             for f in np.linspace(0, 1, 21):
                 if progress:
@@ -290,6 +290,69 @@ def test_sigint_stops_a_run_with_130_and_no_file(tmp_path):
             proc.kill()
     assert "Traceback" not in err and "interrupted" in err
     assert sorted(os.listdir(tmp_path)) == ["small.toml"]
+
+
+#: sitecustomize of the early-signal test: the process sends itself a signal when it
+#: starts importing one module (a deterministic moment inside the imports, whatever the load)
+SIGNAL_ON_IMPORT = """
+import os, signal, sys
+
+class SignalOnImport:
+    def find_spec(self, name, path=None, target=None):
+        if name == os.environ["SPOTPDE_TEST_MODULE"]:
+            sys.meta_path.remove(self)
+            os.kill(os.getpid(), getattr(signal, os.environ["SPOTPDE_TEST_SIGNAL"]))
+        return None
+
+sys.meta_path.insert(0, SignalOnImport())
+"""
+
+
+@pytest.mark.parametrize("module,sig", [("numba", "SIGINT"), ("netCDF4", "SIGTERM"),
+                                        ("netCDF4", "SIGINT")])
+def test_a_signal_during_the_imports_is_a_quiet_interrupt(tmp_path, module, sig):
+    """``spotpde run`` signalled while it imports its libraries (numba: while it validates
+    the case; netCDF4: once the spot density stage has started) exits with 130 or
+    128 + n and one line, no traceback, no file: the signal is acted upon after the
+    imports."""
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "sitecustomize.py").write_text(SIGNAL_ON_IMPORT)
+    work = tmp_path / "work"
+    work.mkdir()
+    (work / "small.toml").write_text(SMALL)
+    env = dict(os.environ, PYTHONPATH=f"{site}{os.pathsep}{ROOT}", MPLBACKEND="Agg",
+               SPOTPDE_TEST_MODULE=module, SPOTPDE_TEST_SIGNAL=sig)
+    r = subprocess.run([sys.executable, "-m", "spotpde", "run", "small.toml", "--plot"],
+                       cwd=work, env=env, capture_output=True, text=True, timeout=300)
+    signum = getattr(signal, sig)
+    assert r.returncode == (130 if signum == signal.SIGINT else 128 + signum), r.stderr
+    lines = [line for line in r.stderr.splitlines() if not line.endswith("%")]
+    assert "Traceback" not in r.stderr and len(lines) == 1, r.stderr
+    assert lines[0].endswith("no result written")
+    assert sorted(os.listdir(work)) == ["small.toml"]
+
+
+def test_a_run_computes_its_spot_density_and_fields_once(small_case, monkeypatch, capsys):
+    """The run-time estimate is made from the fields of the run itself (not recomputed),
+    after the particle-fields stage and before the tracer stage."""
+    from spotpde.density import spot_density
+
+    calls = []
+    solve, fields = spot_density.solve, pipeline.case_fields
+    monkeypatch.setattr(spot_density, "solve",
+                        lambda *a, **k: calls.append("rho_s") or solve(*a, **k))
+    monkeypatch.setattr(pipeline, "case_fields",
+                        lambda *a, **k: calls.append("fields") or fields(*a, **k))
+    assert cli.main(["run", str(small_case)]) == 0
+    assert calls == ["rho_s", "fields"]
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == "spotpde: spot density 0%"
+    estimate = next(i for i, line in enumerate(err) if "steps of dt" in line)
+    assert err.index("spotpde: particle fields 100%") < estimate
+    tracer = next(i for i, line in enumerate(err) if line.startswith("spotpde: tracer ")
+                  and line.endswith("%"))
+    assert estimate < tracer
 
 
 def test_real_run_of_a_tiny_case(small_case, capsys):

@@ -64,3 +64,24 @@ def test_day_long_runs_are_refused(tmp_path, capsys):
     path = _write(tmp_path, 10.0)
     assert main(["check", path]) == 0
     assert "steps of dt" in capsys.readouterr().err
+
+
+def test_a_refused_run_stops_before_the_tracer_and_its_file(tmp_path, capsys, monkeypatch):
+    """``spotpde run`` estimates from the fields its pipeline computed and refuses there:
+    one line (with -q), status 2, no tracer step, no result or temporary file opened."""
+    from spotpde.app import pipeline
+
+    def never(*args, **kwargs):
+        raise AssertionError("a refused run must not reach this")
+
+    monkeypatch.setattr(tracer, "solve", never)
+    monkeypatch.setattr(pipeline, "FrameWriter", never)
+    path = _write(tmp_path, 1e9)
+    assert main(["run", path, "-o", str(tmp_path / "never.nc"), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("tracer.t_end: the run would take about")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["case.toml"]
+    assert main(["run", _write(tmp_path, 10.0, cfl=1e-300), "-o", str(tmp_path / "n.nc"),
+                 "-q"]) == 2
+    assert capsys.readouterr().err.startswith("tracer.cfl:")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["case.toml"]

@@ -97,12 +97,14 @@ def cmd_check(args) -> int:
     return EXIT_OK
 
 
-def _estimate(case, allow_long: bool, quiet: bool = False) -> None:
+def _estimate(case, allow_long: bool, quiet: bool = False, fields=None) -> None:
     """Print the tracer run-time estimate (unless ``quiet``); refuse (CaseError) a run over a
-    day."""
+    day. From the steady ``fields`` when given (``run``: the fields its pipeline computed),
+    else computing them (``check``)."""
     from . import estimate
     try:
-        est = estimate.case_estimate(case)
+        est = (estimate.case_estimate(case) if fields is None else
+               estimate.fields_estimate(case, fields))
     except Exception:      # the run itself reports what is wrong with the fields
         est = None
     if quiet:
@@ -114,32 +116,80 @@ def _estimate(case, allow_long: bool, quiet: bool = False) -> None:
     estimate.refuse_if_long(case, est, allow_long)
 
 
-def cmd_run(args) -> int:
-    """``spotpde run CASE.toml [-o OUT.nc] [--plot [FIG.png]]``: run, stream to the file."""
-    from .cases import load_case
-    from .pipeline import run
+def _run_libraries(case) -> None:
+    """Import what ``spotpde run`` of ``case`` will use, so that it can be done inside
+    :class:`~spotpde.app._localdask.deferred_signals`: the pipeline and io (xarray,
+    netCDF4 and xarray's backends, found through entry points on first use), the spot
+    density, field (with the FFT convolution: pyfftw) and kinematic solvers, and the
+    tracer."""
+    import importlib
 
-    case = load_case(args.case, frames_in_memory=False)   # frames are streamed to the file
-    if args.output is not None:
-        case = case.with_output(args.output)
-    out = case.output_path
-    fig = None
-    if args.plot is not None:
-        fig = Path(args.plot) if args.plot else out.with_suffix(".png")
-    _check_outputs([("output.path", out, None), ("--plot", fig, FIGURE_FORMATS)],
-                   inputs=[args.case])
-    _estimate(case, args.allow_long, args.quiet)
+    from ._localdask import import_libraries
+
+    import_libraries(dask=False)
+    try:     # xarray's netCDF writer asks dask for its scheduler, and dask imports distributed
+        import distributed  # noqa: F401
+    except ImportError:
+        pass
+    particle = case.model != "void"
+    for name in ("spotpde.app.pipeline", "spotpde.app.estimate",
+                 "spotpde.density.spot_density", "spotpde.density.kinematic",
+                 "spotpde.fields.coefficients" if particle else "spotpde.fields.void",
+                 "spotpde.fields.convolution" if particle else None,   # pyfftw
+                 "spotpde.tracer" if case.tracer is not None else None,
+                 "spotpde.density.traffic" if case.spots.rho_max is not None else None,
+                 "spotpde.pair" if case.data.get("pair") is not None else None):
+        if name is not None:
+            importlib.import_module(name)
+
+
+def cmd_run(args) -> int:
+    """``spotpde run CASE.toml [-o OUT.nc] [--plot [FIG.png]]``: run, stream to the file.
+
+    A signal received while the command imports its libraries is acted upon after the
+    imports (:class:`~spotpde.app._localdask.deferred_signals`), so an early Ctrl-C exits
+    with the documented status and one line. The progress starts with the spot density
+    stage once the case is valid and the outputs writable: loading the solvers is its
+    first part. The run-time estimate is made from the fields the run computes, before
+    the tracer starts and before any file is created.
+    """
+    from ._localdask import deferred_signals
+
+    with deferred_signals():    # a signal during the imports is acted upon after them
+        from .cases import load_case
+
+        case = load_case(args.case, frames_in_memory=False)   # frames are streamed to the file
+        if args.output is not None:
+            case = case.with_output(args.output)
+        out = case.output_path
+        fig = None
+        if args.plot is not None:
+            fig = Path(args.plot) if args.plot else out.with_suffix(".png")
+        _check_outputs([("output.path", out, None), ("--plot", fig, FIGURE_FORMATS)],
+                       inputs=[args.case])
     progress = None if args.quiet else Progress()
     t0 = time.monotonic()
     try:
-        ds = run(case, progress=progress, path=out)
+        if progress is not None:
+            progress("spot density", 0.0)
+        with deferred_signals():
+            _run_libraries(case)
+            from .pipeline import run
+
+        def on_fields(fields):
+            if progress is not None:
+                progress.close()        # a bar is finished before the estimate's line
+            _estimate(case, args.allow_long, args.quiet, fields=fields)
+
+        ds = run(case, progress=progress, path=out, on_fields=on_fields)
     finally:
         if progress is not None:
             progress.close()
     args.written = out
     _say(f"spotpde: wrote {out} ({time.monotonic() - t0:.1f} s)")
     if fig is not None:
-        from .plotting import plot_result
+        with deferred_signals():
+            from .plotting import plot_result
 
         plot_result(ds, fig)
         _say(f"spotpde: wrote {fig}")

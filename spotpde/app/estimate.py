@@ -89,7 +89,23 @@ def tracer_steps(grid, fields, t_end: float, frames: int, *, limiter: str = "wen
 
 
 def case_estimate(case) -> dict | None:
-    """:func:`tracer_steps` for a case (computes its steady fields: cheap next to a run).
+    """:func:`fields_estimate` for a case, computing its steady spot density and fields
+    (``spotpde check``; ``spotpde run`` estimates from the fields its run computes).
+
+    Returns ``None`` where :func:`fields_estimate` does (before computing anything).
+    """
+    if not _estimated(case):
+        return None
+    from ..density import spot_density
+    from .._roundoff import clip_roundoff
+    from .pipeline import case_fields
+    rho = clip_roundoff(np.asarray(spot_density.solve(case.grid, case.orifice, case.spots),
+                                   dtype=float))
+    return fields_estimate(case, case_fields(case, rho))
+
+
+def fields_estimate(case, fields) -> dict | None:
+    """:func:`tracer_steps` for a case whose steady coefficient ``fields`` are known.
 
     Returns ``None`` without a tracer, for ``tracer.t_end = inf`` (one sparse solve),
     for transient spots (the fields change during the run), and for the long-run schemes
@@ -97,20 +113,21 @@ def case_estimate(case) -> dict | None:
     With ``"auto"`` the explicit estimate is an upper bound (auto switches to multirate
     only for runs of more than 200 000 explicit steps).
     """
+    if not _estimated(case):
+        return None
     t = case.tracer
-    if t is None or math.isinf(t.t_end) or case.spots.mode == "transient":
-        return None
-    if case.tracer_options.get("stepping", "explicit") in ("multirate", "imex", "implicit"):
-        return None
-    from ..density import spot_density
-    from .._roundoff import clip_roundoff
-    from .pipeline import case_fields
-    rho = clip_roundoff(np.asarray(spot_density.solve(case.grid, case.orifice, case.spots),
-                                   dtype=float))
-    fields = case_fields(case, rho)
     opts = {k: case.tracer_options[k] for k in ("limiter", "cfl", "diffusion")
             if k in case.tracer_options}
     return tracer_steps(case.grid, fields, t.t_end, t.frames, **opts)
+
+
+def _estimated(case) -> bool:
+    """Whether :func:`fields_estimate` estimates the case's tracer run (see there)."""
+    t = case.tracer
+    if t is None or math.isinf(t.t_end) or case.spots.mode == "transient":
+        return False
+    return case.tracer_options.get("stepping", "explicit") not in ("multirate", "imex",
+                                                                   "implicit")
 
 
 def describe(est: dict) -> str:

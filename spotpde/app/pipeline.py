@@ -47,7 +47,8 @@ Progress = Callable[[str, float], None]
 
 
 def run(case: Case | str, progress: Progress | None = None, *,
-        path: str | os.PathLike | None = None) -> xr.Dataset:
+        path: str | os.PathLike | None = None,
+        on_fields: Callable[[dict], None] | None = None) -> xr.Dataset:
     """Run a case.
 
     Args:
@@ -58,6 +59,12 @@ def run(case: Case | str, progress: Progress | None = None, *,
             then streamed to the file as they are computed instead of being held in
             memory, and the returned Dataset reads ``P`` lazily from the file (one
             frame per chunk), so memory does not grow with ``tracer.frames``.
+        on_fields: optional ``on_fields(fields)``, called once with the steady
+            coefficient fields (dict of grid arrays, as returned by :func:`case_fields`)
+            right after the particle-fields stage, before the tracer stage and before
+            ``path`` or its temporary file is created; an exception it raises propagates
+            unchanged (``spotpde run`` prints its run-time estimate there and refuses a
+            run of more than a day with a ``CaseError``).
 
     Returns:
         The result :class:`xarray.Dataset` (lengths in d, times in the case unit).
@@ -79,17 +86,39 @@ def run(case: Case | str, progress: Progress | None = None, *,
         problem = output_problem(path, inputs=[case.source] if case.source else ())
         if problem:
             raise ValueError(f"path: {problem}")
+    raised = []        # what on_fields raised: not a solver refusing derived data
+
+    def fields_hook(fields):
+        try:
+            on_fields(fields)
+        except BaseException as exc:
+            raised.append(exc)
+            raise
+
+    hook = fields_hook if on_fields is not None else None
     try:
         if path is None:
-            return _run(case, progress)
+            return _run(case, progress, on_fields=hook)
         if case.tracer is None or math.isinf(case.tracer.t_end):   # no P frames to stream
-            ds = _run(case, progress)
+            ds = _run(case, progress, on_fields=hook)
             write_netcdf(ds, path)
             return ds
-        with FrameWriter(path, case.grid, case.tracer.frames) as writer:
-            written = writer.finish(_run(case, progress, on_frame=writer))
+        import contextlib
+
+        with contextlib.ExitStack() as files:
+            writers = []
+
+            def open_writer():   # when the tracer starts: after on_fields, so a refused
+                writers.append(files.enter_context(     # run leaves no file
+                    FrameWriter(path, case.grid, case.tracer.frames)))
+                return writers[0]
+
+            ds = _run(case, progress, open_frames=open_writer, on_fields=hook)
+            written = writers[0].finish(ds)
         return xr.open_dataset(written, engine="netcdf4", chunks={})  # P: one frame a chunk
     except ValueError as err:
+        if raised and err is raised[0]:
+            raise
         # The case passed validation, so a solver refusing its inputs here (ValueError
         # naming its argument) is refusing derived data (fields, densities): a numerical
         # failure, not an invalid case.
@@ -97,9 +126,14 @@ def run(case: Case | str, progress: Progress | None = None, *,
         raise NumericalError("; ".join(lines)) from None
 
 
-def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
+def _run(case: Case, progress: Progress | None, open_frames=None,
+         on_fields=None) -> xr.Dataset:
+    """:func:`run` without the output file; ``open_frames()`` returns the tracer's
+    ``on_frame`` (called when the tracer stage starts), ``on_fields`` as in :func:`run`."""
     grid, orifice, spots = case.grid, case.orifice, case.spots
 
+    if progress is not None:     # the stage starts with loading its solver
+        progress("spot density", 0.0)
     spot_density = importlib.import_module("spotpde.density.spot_density")
     snap_times = case.snapshot_times()
     snapshots = None
@@ -134,6 +168,8 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
     transient = spots.mode == "transient"
     fields = case_fields(case, np.maximum(rho_s, 0.0) if transient else rho_s)
     stage(1.0)
+    if on_fields is not None:
+        on_fields(fields)
 
     stage = _stage(progress, "kinematic model") or _noop
     stage(0.0)
@@ -171,6 +207,7 @@ def _run(case: Case, progress: Progress | None, on_frame=None) -> xr.Dataset:
                             steady_scheme=res.options["scheme"],
                             steady_residual=float(res.residual))
     elif case.tracer is not None:
+        on_frame = open_frames() if open_frames is not None else None
         res = tracer.solve(grid, coefficients, P0, case.tracer.t_end, case.tracer.frames,
                            progress=_stage(progress, "tracer"),
                            on_frame=_outside_as_nan(grid, on_frame), **case.tracer_options)
