@@ -25,6 +25,7 @@ The Dataset has the public variables (docs/interface.md) and global attributes `
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import math
 import os
@@ -103,8 +104,6 @@ def run(case: Case | str, progress: Progress | None = None, *,
             ds = _run(case, progress, on_fields=hook)
             write_netcdf(ds, path)
             return ds
-        import contextlib
-
         with contextlib.ExitStack() as files:
             writers = []
 

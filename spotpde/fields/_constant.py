@@ -32,20 +32,16 @@ class SpotFluxTensor(Mapping):
         self.rho_s, self.D_s = rho_s, D_s
 
     def __getitem__(self, key):
+        from .coefficients import _is_zero
+
         d = self.D_s[key]
-        zero = d is None or (np.ndim(d) == 0 and float(d) == 0.0)
-        return None if zero else self.rho_s * d
+        return None if _is_zero(d) else self.rho_s * d
 
     def __iter__(self):
         return iter(self.D_s)
 
     def __len__(self):
         return len(self.D_s)
-
-
-def _axis(grid: Grid, comp: str) -> int:
-    """Array axis of a coordinate: z is axis 0, x the last, y (3D) axis 1."""
-    return {"z": 0, "y": 1, "x": grid.dims - 1}[comp]
 
 
 def _boundary_planes(grid: Grid, rho_p: np.ndarray, comp: str) -> list[tuple[int, np.ndarray]]:
@@ -57,6 +53,8 @@ def _boundary_planes(grid: Grid, rho_p: np.ndarray, comp: str) -> list[tuple[int
     cells (where ``np.gradient``'s field is zero). Returns
     ``[(padded index, delta - gradient on that plane), ...]``; only those planes are read.
     """
+    from .coefficients import _axis
+
     axis = _axis(grid, comp)
     h = grid.spacing
     n = rho_p.shape[axis] - 2
@@ -125,7 +123,7 @@ def constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, lam
     the general path to round-off. ``D_source`` (default ``D_s``): the constant tensor
     ``T`` of ``D_p = w^2 * (rho_s T)`` (the passage diffusivity's ``v_s b_eff``).
     """
-    from .coefficients import _COMPONENTS, _is_zero, _pair
+    from .coefficients import _COMPONENTS, _axis, _is_zero, _pair
 
     comps = _COMPONENTS[grid.dims]
     h = grid.spacing

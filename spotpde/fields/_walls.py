@@ -43,6 +43,7 @@ import scipy.fft
 import scipy.integrate
 import scipy.signal
 
+from ._fft import threads
 from ..grid import Grid
 
 __all__ = ["WALL_TREATMENTS", "check_walls", "renormalises", "coverage", "face_value",
@@ -303,7 +304,7 @@ def _box_convolutions(requests, stencils, shape) -> dict:
     for (key, _), members in groups.items():
         stencil = stencils[key]
         axes = tuple(range(1, stencil.ndim + 1))
-        with scipy.fft.set_workers(_fft_threads()):
+        with scipy.fft.set_workers(threads()):
             full = scipy.signal.fftconvolve(np.stack([requests[i][2] for i in members]),
                                             stencil[None], mode="full", axes=axes)
         for j, i in enumerate(members):
@@ -316,11 +317,6 @@ def _box_convolutions(requests, stencils, shape) -> dict:
                 src.append(slice(lo - start, hi - start))
             out.setdefault(name, []).append((tuple(dst), full[j][tuple(src)]))
     return out
-
-
-def _fft_threads() -> int:
-    from ._fft import threads
-    return threads()
 
 
 def _add(target: np.ndarray, parts, factor: float) -> None:
@@ -337,7 +333,7 @@ def renormalised_constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s:
     vanishes except within a stencil half-width of the reflecting side walls. So the fields
     are the truncated ones of ``_constant.constant_fields`` (one transform of ``rho_s``
     per stencil) plus the convolutions of the sources times ``1/phi - 1`` over those wall
-    strips (:func:`_box_convolution`)::
+    strips (:func:`_box_convolutions`)::
 
         u_z   += -v_s  w   * (rho_s (1/phi - 1))
         u_a   += 2 lam w   * (div_a(D_s rho_s) (1/phi - 1))
@@ -356,24 +352,24 @@ def renormalised_constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s:
     fields = constant_fields(grid, rho_s, v_s, D_s, lam, conv, D_source)
     boxes = _wall_boxes(grid, [(k - 1) // 2 for k in conv.stencils[1].shape])
     eps1 = [1.0 / phi[box] - 1.0 for box in boxes]
-    requests, factors = [], {}
+    # requests are named by (drift component, factor): each is added to that component
+    requests = []
     if v_s != 0.0:
-        requests += [("u_z", box, rho_s[box] * e, 1) for box, e in zip(boxes, eps1)]
-        factors["u_z"] = -v_s * hd
+        requests += [(("u_z", -v_s * hd), box, rho_s[box] * e, 1) for box, e in zip(boxes, eps1)]
     for a in comps if lam != 0.0 else ():
         coeffs = {b: float(D_s[_pair(a, b)]) for b in comps if not _is_zero(D_s[_pair(a, b)])}
         if coeffs:
-            requests += [(f"div_{a}", box, e * sum(
+            requests += [((f"u_{a}", 2.0 * lam * hd), box, e * sum(
                 d * _box_derivative(rho_s, h, box, grid.axes.index(b)) for b, d in coeffs.items()),
                 1) for box, e in zip(boxes, eps1)]
-            factors[f"div_{a}"] = 2.0 * lam * hd
     T = D_s if D_source is None else D_source
     p2, c2 = conv.use[2]
-    if any(not _is_zero(t) for t in T.values()):
+    if any(not _is_zero(t) for t in T.values()):    # one source for every D component
         requests += [("D", box, rho_s[box] * (1.0 / phi[box]**2 - 1.0), p2) for box in boxes]
     parts = _box_convolutions(requests, conv.stencils, grid.shape)
-    for name, factor in factors.items():
-        _add(fields["u_z" if name == "u_z" else "u_" + name[4:]], parts.get(name, []), factor)
+    for name, pieces in parts.items():
+        if name != "D":
+            _add(fields[name[0]], pieces, name[1])
     for key, t in T.items():
         if not _is_zero(t):
             _add(fields[key], parts.get("D", []), float(t) * c2 * hd)

@@ -428,17 +428,18 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
     constant = np.ndim(v_s) == 0 and all(np.ndim(d) == 0 for d in D_s.values())
     if D_source is not None:
         constant = constant and all(np.ndim(d) == 0 for d in D_source.values())
+    constant = constant and min(grid.shape) >= 3    # the one-transform paths need 3 cells
     if _walls.renormalises(grid, walls):
         # free-volume-conserving walls: sources divided by phi (u_p) and phi^2 (D_p)
         phi = _walls.coverage(grid, kernel, mask)
-        if constant and mask is None and min(grid.shape) >= 3:   # phi < 1 by the walls only
+        if constant and mask is None:   # phi < 1 by the walls only
             fields = _walls.renormalised_constant_fields(grid, rho_s, float(v_s), D_s, lam,
                                                          conv, phi, D_source)
         else:
             fields = _walls.renormalised_fields(grid, rho_s, v_s, D_s, lam, conv, phi, D_source)
         G = fields.pop("_G")
         fields.pop("_phi")
-    elif constant and min(grid.shape) >= 3:
+    elif constant:
         fields = constant_fields(grid, rho_s, float(v_s), D_s, lam, conv, D_source)
         G = SpotFluxTensor(rho_s, D_s)
     else:
