@@ -32,9 +32,10 @@ import time
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from . import _advection, _diffusion
+from ._extrapolation import Extrapolation
+from ._linsolve import factorize
 from ._steady import _AXES, _Assembly
 from ..errors import NumericalError
 
@@ -122,16 +123,20 @@ class _Factors:
         self.seconds = 0.0
 
     def solve(self, tau, rhs):
+        return self.factor(tau).solve(rhs)
+
+    def factor(self, tau):
+        """The factors of ``I - tau A`` (made on first use)."""
         lu = self.lu.get(tau)
         if lu is None:
             t0 = time.perf_counter()
-            lu = spla.splu((self.I - tau * self.A).tocsc(), permc_spec="MMD_AT_PLUS_A")
+            lu = factorize((self.I - tau * self.A).tocsc(), permc_spec="MMD_AT_PLUS_A")
             self.seconds += time.perf_counter() - t0
             self.count += 1
             if len(self.lu) >= self.KEEP:
                 self.lu.pop(next(iter(self.lu)))
             self.lu[tau] = lu
-        return lu.solve(rhs)
+        return lu
 
 
 class ImplicitStepper:
@@ -300,17 +305,13 @@ class ImexSplit:
     def __init__(self, grid, f, faces_implicit, extrapolate=True, eps=0.0):
         self.extrapolate = extrapolate
         self.eps = eps
+        self.tiny = 1e-85 * eps              # 1e-100 max(P0), as in the explicit kernels
         self.theta_min = 1.0
         self.A, self.asm, self.Bz, self.n_bad = build_operator(grid, f, faces_implicit)
         self.fac = _Factors(self.A)
         self.S = np.zeros(self.A.shape[0])
         self.shape = grid.shape
-        self.A_diag = self.A.diagonal()
-        off = (self.A - sp.diags(self.A_diag)).tocsc()
-        off.data[off.data < 0] = 0.0          # none: the off-diagonals of an M-matrix
-        off.eliminate_zeros()
-        off.sort_indices()
-        self.A_off = off
+        self.extrapolation = Extrapolation(self.A, grid.shape[-1])
 
     def backward_euler(self, P, tau):
         p = P.ravel()
@@ -318,44 +319,10 @@ class ImexSplit:
             Pn = self.fac.solve(tau, p)
             self.S += tau * Pn
             return np.ascontiguousarray(Pn.reshape(self.shape))
-        Pa = self.fac.solve(tau, p)
-        P1 = self.fac.solve(0.5 * tau, p)
-        Pb = self.fac.solve(0.5 * tau, P1)
-        Sb = 0.5 * tau * (P1 + Pb)
-        delta = Sb - tau * Pa                # Pb - Pa = A delta
-        theta = self._limit(Pb, delta)
-        self.theta_min = min(self.theta_min, float(theta.min()))
-        corr = theta * delta
-        self.S += Sb + corr
-        return np.ascontiguousarray((Pb + self.A @ corr).reshape(self.shape))
-
-    def _limit(self, Pb, delta):
-        """Per-cell weights ``theta in [0, 1]`` of the correction ``A (theta delta)`` that
-        keep ``Pb + A (theta delta) >= -eps``: cell ``i`` can lose at most ``Pb_i + eps``
-        through the negative terms ``A_ij delta_j`` (``delta_j < 0``, ``A_ij >= 0``) and
-        ``A_ii delta_i`` (``delta_i > 0``), so these are scaled by ``R_i = min(1, (Pb_i +
-        eps) / -N_i)``, ``N_i`` their sum; ``theta_j`` is the smallest ``R`` of the cells
-        ``delta_j`` takes from (itself if ``delta_j > 0``, its neighbours if ``< 0``)."""
-        neg, pos = np.minimum(delta, 0.0), np.maximum(delta, 0.0)
-        N = self.A_off @ neg + self.A_diag * pos
-        R = np.ones_like(Pb)
-        bad = N < 0
-        R[bad] = np.minimum(1.0, (np.maximum(Pb[bad], 0.0) + self.eps) / -N[bad])
-        theta = np.where(delta > 0, R, 1.0)
-        take = delta < 0
-        if take.any():
-            theta[take] = np.minimum(theta[take], self._column_min(R)[take])
-        return theta
-
-    def _column_min(self, R):
-        """``min_i R_i`` over the rows ``i`` of each column of ``A_off`` (1 if empty)."""
-        A = self.A_off
-        out = np.ones(A.shape[1])
-        if A.nnz:
-            vals = R[A.indices]
-            nonempty = np.diff(A.indptr) > 0
-            out[nonempty] = np.minimum.reduceat(vals, A.indptr[:-1][nonempty])
-        return out
+        Pn, theta_min = self.extrapolation(self.fac.factor(tau), self.fac.factor(0.5 * tau),
+                                           p, tau, self.eps, self.S, self.tiny)
+        self.theta_min = min(self.theta_min, theta_min)
+        return Pn.reshape(self.shape)
 
     def exits(self):
         ex = self.asm.exits(self.S.reshape(self.shape))

@@ -23,9 +23,9 @@ from typing import Mapping
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from . import _advection, _diffusion
+from ._linsolve import factorize
 from . import _fp_kernels as K
 from ..grid import DIFFUSIVITY_KEYS, DRIFT_KEYS, Grid
 
@@ -147,7 +147,7 @@ class _Operator:
         if lu is None:
             n = P.size
             M = (sp.identity(n, format="csc") - tau * self.L).tocsc()
-            lu = spla.splu(M)
+            lu = factorize(M)
             self._lu = {tau: lu}
         Pn = lu.solve(P.ravel()).reshape(P.shape)
         Fz = (self.Bz @ Pn.ravel()).reshape((P.shape[0] + 1,) + P.shape[1:])
