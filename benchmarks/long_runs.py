@@ -231,6 +231,47 @@ def convergence(args):
               f"max |outflow| {e_o:.2e}, max |mass| {e_m:.2e}, L1(P_height) {e_h:.2e}")
 
 
+def accuracy(args):
+    """Errors of the multirate splits and of the explicit scheme on the small void case
+    (h = 0.25, t in [0, --conv-t], the passage through the orifice) against two
+    references: explicit WENO5 at h = 0.125 (the converged solution: total error) and
+    explicit at h = 0.25 with cfl 0.1 (the same grid, time-converged: time error)."""
+    T = args.conv_t
+    print(f"accuracy: void model, release 20 d up a point orifice, 30 x 30 d, h = 0.25, t in "
+          f"[0, {T:g}] (5 frames)")
+    gf, ff, Pf = setup(small_void(0.125, T))
+    tracer.solve(gf, ff, Pf, 1.0, 2)
+    t_f, rf = timed(lambda: tracer.solve(gf, ff, Pf, T, 5))
+    fz = rf.P_height_faces[::2]
+    fine = {"P": [coarsen(p, 2) for p in rf.P], "outflow": rf.outflow,
+            "P_height": coarsen(np.repeat(0.5 * (fz[:-1] + fz[1:]), 2, axis=0), 2)}
+    grid, f, P0 = setup(small_void(0.25, T))
+    t_t, rt = timed(lambda: tracer.solve(grid, f, P0, T, 5, cfl=0.1))
+    print(f"  references: h = 0.125 explicit {t_f:.0f} s ({rf.steps} steps); h = 0.25 cfl 0.1 "
+          f"{t_t:.0f} s ({rt.steps} steps)")
+    hv, hh = grid.cell_volume, grid.spacing ** 2
+
+    def errors(r, ref):
+        return (max(l1(a, b, hv) for a, b in zip(r.P, ref["P"] if isinstance(ref, dict)
+                                                  else ref.P)),
+                float(np.abs(r.outflow - (ref["outflow"] if isinstance(ref, dict)
+                                          else ref.outflow)).max()),
+                l1(r.P_height, ref["P_height"] if isinstance(ref, dict) else ref.P_height, hh))
+
+    rows = [("explicit", {})] + [(f"multirate {s:g}", {"stepping": "multirate", "split": s})
+                                 for s in args.multirate_splits]
+    base = None
+    print("  scheme        steps | total error: frames  outflow  P_height (x explicit) | "
+          "time error: frames  outflow  P_height")
+    for name, kw in rows:
+        r = tracer.solve(grid, f, P0, T, 5, **kw)
+        tot, tim = errors(r, fine), errors(r, rt)
+        base = base or tot
+        ratio = "  ".join(f"{e:.2e} ({e / b:.2f})" for e, b in zip(tot, base))
+        print(f"  {name:13s} {r.steps:5d} | {ratio} | "
+              + "  ".join(f"{e:.2e}" for e in tim))
+
+
 def flagship(args):
     path = pathlib.Path(__file__).resolve().parent.parent / "cases" / "quasi2d_layers.toml"
     raw = tomllib.loads(path.read_text())
@@ -285,6 +326,8 @@ def main():
                     help="void section: also the implicit run with tol / 100")
     ap.add_argument("--window", type=float, default=0.0)
     ap.add_argument("--convergence", action="store_true")
+    ap.add_argument("--accuracy", action="store_true",
+                    help="total and time errors of explicit and --multirate-splits")
     ap.add_argument("--conv-t", type=float, default=400.0)
     ap.add_argument("--flagship", action="store_true")
     ap.add_argument("--flagship-ref", action="store_true")
@@ -296,6 +339,8 @@ def main():
         window(args)
     if args.convergence:
         convergence(args)
+    if args.accuracy:
+        accuracy(args)
     if args.flagship:
         flagship(args)
 
