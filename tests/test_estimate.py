@@ -85,3 +85,25 @@ def test_a_refused_run_stops_before_the_tracer_and_its_file(tmp_path, capsys, mo
                  "-q"]) == 2
     assert capsys.readouterr().err.startswith("tracer.cfl:")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["case.toml"]
+
+
+def test_multirate_and_auto_estimates_are_the_solvers(monkeypatch):
+    """The void model next to a point orifice: multirate, and auto once the explicit run
+    counts as long (threshold lowered), take the estimated steps and split."""
+    from spotpde.tracer import _solve
+    from test_implicit_tracer import _void
+    grid, fields, P0 = _void(0.25)
+    explicit = estimate.tracer_steps(grid, fields, 20.0, 3, stepping="auto")
+    assert explicit["stepping"] == "explicit"           # a short run stays explicit
+    monkeypatch.setattr(_solve, "AUTO_IMEX_STEPS", 100)
+    for stepping in ("multirate", "auto"):
+        est = estimate.tracer_steps(grid, fields, 20.0, 3, stepping=stepping)
+        res = tracer.solve(grid, fields, P0, 20.0, 3, stepping=stepping)
+        assert est["stepping"] == res.options["stepping"] == "multirate"
+        assert est["split"] == res.options["split"]
+        assert est["steps"] == res.steps
+        # the grid steps at the slow cells' limit, max(a_slow) <= max(a) / split: at
+        # least split times fewer steps (within the rounding of the two ceilings)
+        assert est["steps"] * est["split"] <= explicit["steps"] + 2 * est["split"]
+    with pytest.raises(ValueError, match="^stepping"):
+        estimate.tracer_steps(grid, fields, 20.0, 3, stepping="imex")

@@ -18,6 +18,12 @@ benchmarks/steady.py):
   (void-model propagator, 8.96e4 cells: 16 ms a step in all with one thread at a load
   average of 3, of which about 5 ms are the SSP-RK3 advection).
 
+``tracer.stepping = "multirate"`` (and ``"auto"`` where the solver picks it,
+:func:`spotpde.tracer._solve.choose_stepping`) steps the grid at the limit of the cells
+outside the fast box, ``dt = cfl / max_slow a``, so its steps are known the same way;
+a step costs the SSP-RK3 step of the grid, three solves and the limiter of the implicit
+diffusion (1.5 times the two solves above) and the box's sub-steps.
+
 A run estimated at more than :data:`MAX_SECONDS` (a day) is refused unless asked for
 (``spotpde run --allow-long``); ``tracer.t_end = inf`` needs no estimate (one solve).
 """
@@ -40,7 +46,8 @@ MAX_SECONDS = 86400.0
 
 
 def tracer_steps(grid, fields, t_end: float, frames: int, *, limiter: str = "weno5",
-                 cfl: float = 0.9, diffusion: str = "auto") -> dict:
+                 cfl: float = 0.9, diffusion: str = "auto", stepping: str = "explicit",
+                 split: float | None = None) -> dict:
     """Steps and wall time of ``tracer.solve`` with steady ``fields``, before running it.
 
     Args:
@@ -49,17 +56,23 @@ def tracer_steps(grid, fields, t_end: float, frames: int, *, limiter: str = "wen
         t_end: duration (time units), finite and > 0.
         frames: output frames (>= 2).
         limiter, cfl, diffusion: the solver's options.
+        stepping, split: ``"explicit"``, ``"multirate"`` or ``"auto"`` (which is decided
+            as the solver decides it), and the multirate split (``None``: the default).
 
     Returns:
         dict: ``steps``, ``dt`` (time units), ``seconds`` (estimated wall time),
-        ``implicit`` (bool), ``rate`` (``max a``, 1/time), ``cells``.
+        ``implicit`` (bool), ``rate`` (``max a``, 1/time), ``cells``, ``stepping``
+        (``"explicit"`` or ``"multirate"``), ``split``.
 
     Raises:
-        ValueError: ``t_end``, ``frames`` or ``cfl`` out of range.
+        ValueError: ``t_end``, ``frames``, ``cfl`` or ``stepping`` out of range.
     """
     from ..tracer import _advection
     from ..tracer._geometry import operator
-    from ..tracer._solve import _check_fields
+    from ..tracer._solve import _check_fields, choose_stepping
+    if stepping not in ("explicit", "multirate", "auto"):
+        raise ValueError(f'stepping: the estimate knows "explicit", "multirate" and "auto", '
+                         f"got {stepping!r}")
     if not (math.isfinite(t_end) and t_end > 0):
         raise ValueError(f"t_end: must be finite and > 0, got {t_end!r}")
     if not (isinstance(frames, (int, np.integer)) and frames >= 2):
@@ -80,12 +93,34 @@ def tracer_steps(grid, fields, t_end: float, frames: int, *, limiter: str = "wen
     n_sub = max(1, math.ceil(per - 1e-9)) if math.isfinite(per) else math.inf
     steps = n_sub * (frames - 1)
     cells = int(grid.size)
-    per_step = cells / STEP_RATE.get(limiter, STEP_RATE_DEFAULT)
+    step_rate = STEP_RATE.get(limiter, STEP_RATE_DEFAULT)
+    per_step = cells / step_rate
     if implicit:
         per_step += cells / IMPLICIT_RATE
+    mode, split = choose_stepping(stepping, split, op.faces, grid.spacing, steps)
+    if mode == "multirate" and math.isfinite(per):
+        from ..tracer._implicit import split_faces
+        from ..tracer._multirate import HALO
+        a = _advection.advective_rate(op.faces, grid.spacing)
+        fast = a > a.max() / split
+        if fast.any():
+            fe, _ = split_faces(op.faces, fast)
+            rate = float(_advection.advective_rate(fe, grid.spacing).max())
+            n_sub = max(1, math.ceil(interval * rate / cfl - 1e-9))
+            steps = n_sub * (frames - 1)
+            idx = np.nonzero(fast)
+            box = math.prod(min(n, int(i.max()) + 1 + HALO) - max(0, int(i.min()) - HALO)
+                            for i, n in zip(idx, fast.shape))
+            sub = 2 * math.ceil(0.5 * interval / n_sub * float(a.max()) / cfl)
+            # the grid's step, its diffusion (three solves and the limiter instead of
+            # two solves), the box's sub-steps
+            per_step = cells / step_rate + 1.5 * cells / IMPLICIT_RATE + sub * box / step_rate
+            implicit = True
+        else:
+            mode = "explicit"
     return {"steps": steps, "dt": interval / n_sub if n_sub else math.inf,
             "seconds": steps * per_step, "implicit": bool(implicit), "rate": rate,
-            "cells": cells}
+            "cells": cells, "stepping": mode, "split": split}
 
 
 def case_estimate(case) -> dict | None:
@@ -108,15 +143,15 @@ def fields_estimate(case, fields) -> dict | None:
     """:func:`tracer_steps` for a case whose steady coefficient ``fields`` are known.
 
     Returns ``None`` without a tracer, for ``tracer.t_end = inf`` (one sparse solve),
-    for transient spots (the fields change during the run), and for the long-run schemes
-    (``tracer.stepping`` "multirate", "imex", "implicit": their steps are not the CFL's).
-    With ``"auto"`` the explicit estimate is an upper bound (auto switches to multirate
-    only for runs of more than 200 000 explicit steps).
+    for transient spots (the fields change during the run), and for ``tracer.stepping``
+    "imex" and "implicit" (their steps are not the CFL's). ``"auto"`` is estimated as the
+    solver will run it (multirate for long runs dominated by a few fast cells).
     """
     if not _estimated(case):
         return None
     t = case.tracer
-    opts = {k: case.tracer_options[k] for k in ("limiter", "cfl", "diffusion")
+    opts = {k: case.tracer_options[k] for k in ("limiter", "cfl", "diffusion", "stepping",
+                                                 "split")
             if k in case.tracer_options}
     return tracer_steps(case.grid, fields, t.t_end, t.frames, **opts)
 
@@ -126,14 +161,14 @@ def _estimated(case) -> bool:
     t = case.tracer
     if t is None or math.isinf(t.t_end) or case.spots.mode == "transient":
         return False
-    return case.tracer_options.get("stepping", "explicit") not in ("multirate", "imex",
-                                                                   "implicit")
+    return case.tracer_options.get("stepping", "explicit") not in ("imex", "implicit")
 
 
 def describe(est: dict) -> str:
     """One line: steps, time step and estimated wall time."""
-    return (f"tracer: {est['steps']:.3g} steps of dt = {est['dt']:.3g} "
-            f"({'implicit' if est['implicit'] else 'explicit'} diffusion), about "
+    how = (f"multirate, split {est['split']:g}" if est.get("stepping") == "multirate" else
+           f"{'implicit' if est['implicit'] else 'explicit'} diffusion")
+    return (f"tracer: {est['steps']:.3g} steps of dt = {est['dt']:.3g} ({how}), about "
             f"{_duration(est['seconds'])} on this machine")
 
 

@@ -80,7 +80,7 @@ class IMEXStrang:
         P(t + n dt) = I(dt/2) [E(dt) I(dt)]^(n-1) E(dt) I(dt/2) P(t),
 
     ``I(tau)`` the extrapolated backward Euler ``2 BE(tau/2)^2 - BE(tau)`` whose
-    correction is limited cell by cell to keep ``P >= 0`` (:meth:`ImexSplit._limit`).
+    correction is limited cell by cell to keep ``P >= 0`` (:mod:`._extrapolation`).
     Explicit part positive for ``dt max(a_explicit) <= 1``; implicit part for every dt.
     """
 

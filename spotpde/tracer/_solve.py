@@ -243,6 +243,23 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
         numba.set_num_threads(saved)
 
 
+def choose_stepping(stepping, split, faces, h, explicit_steps, steady=True):
+    """``(stepping, split)`` a run takes: ``split`` defaults to ``DEFAULT_SPLIT`` of the
+    mode; ``"auto"`` becomes ``"multirate"`` when the explicit run (``explicit_steps``)
+    needs more than ``AUTO_IMEX_STEPS`` steps with steady fields and the fastest 1 % of
+    the moving cells are at least ``MIN_SPLIT`` times faster than the rest (``split``
+    then at most that ratio, :func:`._implicit.auto_split`), else ``"explicit"``.
+    ``faces``: the explicit operator's face velocities; ``h``: the spacing."""
+    if split is None:
+        split = DEFAULT_SPLIT.get(stepping, DEFAULT_SPLIT["multirate"])
+    if stepping == "auto":
+        # multirate where a few fast cells (next to a point orifice) set the explicit step
+        split = min(split, _implicit.auto_split(faces, h)) if steady and \
+            explicit_steps > AUTO_IMEX_STEPS else 1.0
+        stepping = "multirate" if split >= _implicit.MIN_SPLIT else "explicit"
+    return stepping, split
+
+
 def _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl, outlet,
            check_mass, on_frame=None, stepping="explicit", tol=1e-5, split=None,
            make_op=_Operator):
@@ -289,13 +306,8 @@ def _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl
 
     interval = t_end / (frames - 1)
     est_steps = max(1, math.ceil(interval * op0.rate / cfl)) * (frames - 1)
-    if split is None:
-        split = DEFAULT_SPLIT.get(stepping, DEFAULT_SPLIT["multirate"])
-    if stepping == "auto":
-        # multirate where a few fast cells (next to a point orifice) set the explicit step
-        split = min(split, _implicit.auto_split(op0.faces, grid.spacing)) if steady and \
-            est_steps > AUTO_IMEX_STEPS else 1.0
-        stepping = "multirate" if split >= _implicit.MIN_SPLIT else "explicit"
+    stepping, split = choose_stepping(stepping, split, op0.faces, grid.spacing, est_steps,
+                                      steady)
     if stepping == "implicit":
         tracker = _FrameTracker(grid, P, t_end, frames, on_frame, progress, check_mass,
                                 every=1)
