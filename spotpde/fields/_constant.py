@@ -15,6 +15,7 @@ from collections.abc import Mapping
 
 import numpy as np
 import scipy.signal
+from numba import njit, prange
 
 from ..grid import Grid
 
@@ -72,6 +73,27 @@ def _boundary_planes(grid: Grid, rho_p: np.ndarray, comp: str) -> list[tuple[int
             (n + 1, -e0 / (2.0 * h))]
 
 
+def _grid_boundary_planes(grid: Grid, rho_s: np.ndarray, comp: str) -> list:
+    """:func:`_boundary_planes` of ``np.pad(rho_s, 1)`` without padding the whole grid:
+    each plane is one layer of ``rho_s`` padded by one cell along the other axes."""
+    from .coefficients import _axis
+
+    axis = _axis(grid, comp)
+    h, n = grid.spacing, rho_s.shape[axis]
+
+    def plane(i):
+        return np.pad(np.take(rho_s, i, axis=axis), 1)
+
+    r0, r1, r2 = plane(0), plane(1), plane(2)
+    e0, e1, e2 = plane(n - 1), plane(n - 2), plane(n - 3)
+    g_lo = (-1.5 * r0 + 2.0 * r1 - 0.5 * r2) / h
+    g_hi = (1.5 * e0 - 2.0 * e1 + 0.5 * e2) / h
+    return [(0, r0 / (2.0 * h)),
+            (1, r1 / (2.0 * h) - g_lo),
+            (n, -e1 / (2.0 * h) - g_hi),
+            (n + 1, -e0 / (2.0 * h))]
+
+
 def _inner_all(ndim: int) -> list[slice]:
     return [slice(1, -1)] * ndim
 
@@ -111,7 +133,8 @@ def _subtract_planes(target: np.ndarray, stencil: np.ndarray, planes, axis: int,
 
 
 def constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, lam: float,
-                     conv, D_source: Mapping | None = None) -> dict[str, np.ndarray]:
+                     conv, D_source: Mapping | None = None, passage_drift: bool = False,
+                     requests=()) -> dict[str, np.ndarray]:
     """``u_p`` and ``D_p`` for constant ``v_s`` and ``D_s`` from one convolution per stencil.
 
     With constant coefficients ``w * div(D_s rho_s) = D_s^ab w * d_b rho_s``, and the
@@ -121,9 +144,17 @@ def constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, lam
     one cell gives ``u_z``, every ``w * d_b rho_s`` and (``w**2`` proportional to ``w``, or one
     more transform) ``D_p``; the plane terms are cheap 1D/2D convolutions. Identical to
     the general path to round-off. ``D_source`` (default ``D_s``): the constant tensor
-    ``T`` of ``D_p = w^2 * (rho_s T)`` (the passage diffusivity's ``v_s b_eff``).
+    ``T`` of ``D_p = w^2 * (rho_s T)`` (the passage diffusivity's ``v_s b_eff``). 2D grids
+    take :func:`fields_2d` (one pass over the transform), which with ``passage_drift``
+    also adds the passage drift ``div(D_p - D_p_mf)`` and adds the box convolutions of
+    ``requests`` (:func:`add_requests`); both need a 2D grid.
     """
     from .coefficients import _COMPONENTS, _axis, _is_zero, _pair
+
+    if grid.dims == 2:
+        return fields_2d(grid, rho_s, v_s, D_s, lam, conv, D_source, passage_drift, requests)
+    if passage_drift or requests:
+        raise ValueError("passage_drift: the fused passage drift and requests need a 2D grid")
 
     comps = _COMPONENTS[grid.dims]
     h = grid.spacing
@@ -175,3 +206,172 @@ def constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, lam
     return fields
 
 
+
+
+# -- 2D: every field in one pass over the transform --------------------------------------
+
+@njit(parallel=True, cache=True)
+def _fields_2d_kernel(c, cD, h, a0, gxx, gxz, gzx, gzz, px, pz, axx, azz, ux, uz, dxx, dzz):
+    """One pass over the padded convolutions ``c = w * rho~`` (drift) and ``cD`` (``D_p``).
+
+    For every grid cell ``(i, j)`` (padded index ``(i + 1, j + 1)``), with the central
+    differences ``dx = c[., j+2] - c[., j]``, ``dz = c[i+2, .] - c[i, .]`` of the padded
+    transform and ``Dx, Dz`` the second-order grid derivatives of ``cD`` on the grid
+    (``grid.derivative``'s formulas: one-sided on the boundary cells)::
+
+        u_x  = gxx dx + gxz dz + px Dx
+        u_z  = a0 c + gzx dx + gzz dz + pz Dz
+        D_xx = axx cD,   D_zz = azz cD
+
+    ``D_xx`` (``D_zz``) is written only if ``dxx`` (``dzz``) is grid-shaped (an empty
+    array: the caller's zeros); ``Dx`` (``Dz``) is formed only if ``px`` (``pz``) is not 0.
+    """
+    nz, nx = ux.shape
+    h2 = 2.0 * h
+    ea, eb, ec = -1.5 / h, 2.0 / h, -0.5 / h
+    wxx, wzz = dxx.shape[0] == nz, dzz.shape[0] == nz
+    for i in prange(nz):
+        k = i + 1
+        for j in range(nx):
+            q = j + 1
+            dx = c[k, q + 1] - c[k, q - 1]
+            dz = c[k + 1, q] - c[k - 1, q]
+            f = cD[k, q]
+            vx = gxx * dx + gxz * dz
+            vz = a0 * c[k, q] + gzx * dx + gzz * dz
+            if px != 0.0:
+                if j == 0:
+                    fx = ea * f + eb * cD[k, 2] + ec * cD[k, 3]
+                elif j == nx - 1:
+                    fx = -ec * cD[k, nx - 2] - eb * cD[k, nx - 1] - ea * f
+                else:
+                    fx = (cD[k, q + 1] - cD[k, q - 1]) / h2
+                vx += px * fx
+            if pz != 0.0:
+                if i == 0:
+                    fz = ea * f + eb * cD[2, q] + ec * cD[3, q]
+                elif i == nz - 1:
+                    fz = -ec * cD[nz - 2, q] - eb * cD[nz - 1, q] - ea * f
+                else:
+                    fz = (cD[k + 1, q] - cD[k - 1, q]) / h2
+                vz += pz * fz
+            ux[i, j] = vx
+            uz[i, j] = vz
+            if wxx:
+                dxx[i, j] = axx * f
+            if wzz:
+                dzz[i, j] = azz * f
+
+
+def fields_2d(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, lam: float, conv,
+              D_source: Mapping | None = None, passage_drift: bool = False, requests=()
+              ) -> dict[str, np.ndarray]:
+    """:func:`constant_fields` of a 2D grid, every field from one pass over the transform.
+
+    The same sums, reordered to round-off: ``u_a = 2 lam sum_b D_s^ab (delta_b(w * rho~)
+    h^2 / 2h - w * c_b)`` and ``D^ab = T^ab c2 h^2 (w * rho~)`` are formed cell by cell
+    from the transform (:func:`_fields_2d_kernel`, numba, one pass writing each field once)
+    instead of one whole-grid numpy pass per operation. The boundary-plane terms ``w * c_b``
+    are box convolutions (``_strips``), batched with ``requests`` (the renormalised walls'
+    strips; :func:`add_requests`). ``passage_drift``: also add ``div(D_p - D_p_mf)`` (what
+    ``_passage.keep_flux_velocity`` adds; ``D_p - D_p_mf = (T - D_s) c2 h^2 (w * rho~)`` for
+    constant tensors), as the second-order grid derivatives of the transform in the same
+    pass. The transform is read in place (``convolution.convolve_padded``): no padded
+    copy of ``rho_s``, no copy of the result.
+    """
+    from .coefficients import _is_zero
+    from .convolution import convolve, convolve_padded
+
+    h = grid.spacing
+    hd = h * h
+    D_src = D_s if D_source is None else D_source
+
+    def val(m, key):
+        return 0.0 if _is_zero(m.get(key, 0.0)) else float(m[key])
+
+    d = {k: val(D_s, k) for k in ("D_xx", "D_xz", "D_zz")}
+    t = {k: val(D_src, k) for k in ("D_xx", "D_xz", "D_zz")}
+    p2, c2 = conv.use[2]
+    g = lam * hd / h            # 2 lam D^ab (h^2 / 2h) per unit D^ab
+    kD = c2 * hd
+    px = (t["D_xx"] - d["D_xx"]) * kD if passage_drift else 0.0
+    pz = (t["D_zz"] - d["D_zz"]) * kD if passage_drift else 0.0
+    shape = grid.shape
+    ux, uz = np.empty(shape), np.empty(shape)
+    # a D component that vanishes is the zero array (untouched pages: no writing pass)
+    dxx, dzz = (np.empty(shape) if t[k] != 0.0 else np.zeros(shape) for k in ("D_xx", "D_zz"))
+    need_D = any(v != 0.0 for v in t.values()) or px != 0.0 or pz != 0.0
+    cD_own = None
+    if need_D and p2 != 1:      # w**2 not a multiple of w: its own transform (a copy)
+        cD_own = convolve(np.pad(rho_s, 1), conv.stencils[2], mode="linear")
+    with convolve_padded(rho_s, conv.stencils[1], 1) as c:
+        cD = c if cD_own is None else cD_own
+        none = np.empty((0, 0))
+        _fields_2d_kernel(c, cD, h, -float(v_s) * hd, g * d["D_xx"], g * d["D_xz"],
+                          g * d["D_xz"], g * d["D_zz"], px, pz, t["D_xx"] * kD,
+                          t["D_zz"] * kD, ux, uz, dxx if t["D_xx"] != 0.0 else none,
+                          dzz if t["D_zz"] != 0.0 else none)
+        dxz = ((t["D_xz"] * kD) * cD[1:-1, 1:-1] if t["D_xz"] != 0.0 else np.zeros(shape))
+    fields = {"u_x": ux, "u_z": uz, "D_xx": dxx, "D_xz": dxz, "D_zz": dzz}
+    requests = list(requests)
+    if lam != 0.0:              # the boundary planes: - 2 lam D_s^ab hd w * c_b
+        requests += _plane_requests(grid, rho_s, d, lam * 2.0 * hd)
+    add_requests(grid, fields, requests, conv, D_s, D_src, passage_drift)
+    return fields
+
+
+def _plane_requests(grid: Grid, rho_s: np.ndarray, d: Mapping, scale: float) -> list:
+    """The boundary-plane sources ``c_b`` (:func:`_grid_boundary_planes`) as box requests:
+    ``(("u_a", -scale D_s^ab), box, planes, 1)``, one box of two planes at each end of
+    axis ``b`` (the ghost plane at index -1 or ``n`` and the boundary cells)."""
+    nz, nx = grid.shape
+    out = []
+    for b, axis in (("x", 1), ("z", 0)):
+        coeffs = {a: d[_key(a, b)] for a in ("x", "z") if d[_key(a, b)] != 0.0}
+        if not coeffs:
+            continue
+        n = grid.shape[axis]
+        planes = dict(_grid_boundary_planes(grid, rho_s, b))
+        for lo, (p, q) in ((-1, (0, 1)), (n - 1, (n, n + 1))):
+            values = np.stack([planes[p][1:-1], planes[q][1:-1]], axis=axis)
+            box = [slice(0, nz), slice(0, nx)]
+            box[axis] = slice(lo, lo + 2)
+            out += [((f"u_{a}", -scale * dab), tuple(box), values, 1)
+                    for a, dab in coeffs.items()]
+    return out
+
+
+def add_requests(grid: Grid, fields: dict, requests, conv, D_s: Mapping, T: Mapping,
+                 passage_drift: bool = False) -> None:
+    """Add the box convolutions of ``requests`` (``_strips.box_convolutions``) to ``fields``.
+
+    Requests named ``("u_a", factor)`` are added to ``u_a`` times ``factor``; those named
+    ``"D"`` (one source for every ``D_p`` component) to every ``D^ab`` times
+    ``T^ab c2 h^dims``, and with ``passage_drift`` (2D) their derivatives times
+    ``(T - D_s)^aa c2 h^2`` to ``u_a`` (the passage drift ``div(D_p - D_p_mf)``).
+    """
+    from . import _strips
+    from .coefficients import _is_zero
+
+    if not requests:
+        return
+    hd = grid.spacing**grid.dims
+    c2 = conv.use[2][1]
+    parts = _strips.box_convolutions(requests, conv.stencils, grid.shape)
+    for name, pieces in parts.items():
+        if name != "D":
+            _strips.add(fields[name[0]], pieces, name[1])
+    D_parts = parts.get("D", [])
+    for key, t in T.items():
+        if not _is_zero(t):
+            _strips.add(fields[key], D_parts, float(t) * c2 * hd)
+    if passage_drift and D_parts:
+        for key, comp in (("D_xx", "x"), ("D_zz", "z")):
+            t, d = (0.0 if _is_zero(m[key]) else float(m[key]) for m in (T, D_s))
+            if t != d:
+                _strips.add_derivative(fields[f"u_{comp}"], D_parts, grid.spacing,
+                                       grid.axes.index(comp), (t - d) * c2 * hd)
+
+
+def _key(a: str, b: str) -> str:
+    return "D_xz" if a != b else f"D_{a}{a}"

@@ -429,23 +429,26 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
     if D_source is not None:
         constant = constant and all(np.ndim(d) == 0 for d in D_source.values())
     constant = constant and min(grid.shape) >= 3    # the one-transform paths need 3 cells
+    # 2D constant coefficients: the passage drift comes with the fields (one pass)
+    fused = constant and grid.dims == 2 and D_source is not None
     if _walls.renormalises(grid, walls):
         # free-volume-conserving walls: sources divided by phi (u_p) and phi^2 (D_p)
         phi = _walls.coverage(grid, kernel, mask)
         if constant and mask is None:   # phi < 1 by the walls only
             fields = _walls.renormalised_constant_fields(grid, rho_s, float(v_s), D_s, lam,
-                                                         conv, phi, D_source)
+                                                         conv, phi, D_source, fused)
         else:
+            fused = False
             fields = _walls.renormalised_fields(grid, rho_s, v_s, D_s, lam, conv, phi, D_source)
         G = fields.pop("_G")
         fields.pop("_phi")
     elif constant:
-        fields = constant_fields(grid, rho_s, float(v_s), D_s, lam, conv, D_source)
+        fields = constant_fields(grid, rho_s, float(v_s), D_s, lam, conv, D_source, fused)
         G = SpotFluxTensor(rho_s, D_s)
     else:
         fields = _general_fields(grid, rho_s, v_s, D_s, lam, conv, D_source)
         G = fields.pop("_G")
-    if D_source is not None:
+    if D_source is not None and not fused:
         _passage.keep_flux_velocity(grid, rho_s, D_s, D_source, kernel, fields, phi)
 
     # wall layer of the reflecting side walls: (1 - 2 lam) int (D_s rho_s)^ab n_b w dA
