@@ -455,8 +455,8 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
     add_wall_layer(grid, kernel, lam, G, phi, fields)
     # D_p = w^2 * (rho_s D_s) has a non-negative diagonal; the FFT leaves round-off
     # negatives (~1e-17 of the peak) where it vanishes, which the tracer would reject
-    for a in comps:
-        fields[f"D_{a}{a}"] = clip_roundoff(fields[f"D_{a}{a}"])
+    for a in comps:   # the arrays are this call's own: clipped in place
+        fields[f"D_{a}{a}"] = clip_roundoff(fields[f"D_{a}{a}"], inplace=True)
     order = DRIFT_KEYS[grid.dims] + DIFFUSIVITY_KEYS[grid.dims]
     return {k: fields[k] for k in order}
 
