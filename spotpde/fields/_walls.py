@@ -310,17 +310,26 @@ def renormalised_constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s:
     with ``div`` the same second-order differences as the general path (one-sided at the
     walls). Equal to :func:`renormalised_fields` to round-off (``phi`` is 1 to round-off
     away from the walls); whole-grid transforms drop from one per source to one per
-    stencil. ``passage_drift`` (2D): also add the passage drift ``div(D_p - D_p_mf)``
-    (``_passage.keep_flux_velocity``), of the bulk transform and of the strips
-    (``_constant.fields_2d``, which batches the strips' convolutions with its boundary
-    planes'). Also returns ``"_G"`` and ``"_phi"``.
+    stencil. 2D grids take ``_constant.fields_2d`` with the strips' ``1/phi``: it
+    transforms ``rho_s / phi`` itself (``1/phi`` applied to the strip columns of the
+    transform's input), so ``u_z`` needs no strip and the drift's strips absorb the
+    boundary planes (two strip transforms per wall instead of three); with
+    ``passage_drift`` it also adds the passage drift ``div(D_p - D_p_mf)``
+    (``_passage.keep_flux_velocity``). Also returns ``"_G"`` and ``"_phi"``.
     """
     from ._constant import SpotFluxTensor, add_requests, constant_fields
     from .coefficients import _COMPONENTS, _is_zero, _pair
 
+    boxes = _wall_boxes(grid, [(k - 1) // 2 for k in conv.stencils[1].shape])
+    if grid.dims == 2:      # 1/phi on the strip columns multiplies the one transform's input
+        strips = [(box[1], 1.0 / phi[0, box[1]]) for box in boxes]
+        fields = constant_fields(grid, rho_s, v_s, D_s, lam, conv, D_source, passage_drift,
+                                 strips)
+        fields["_G"] = SpotFluxTensor(rho_s, D_s)
+        fields["_phi"] = phi
+        return fields
     comps = _COMPONENTS[grid.dims]
     h, hd = grid.spacing, grid.spacing**grid.dims
-    boxes = _wall_boxes(grid, [(k - 1) // 2 for k in conv.stencils[1].shape])
     eps1 = [1.0 / phi[box] - 1.0 for box in boxes]
     # requests are named by (drift component, factor): each is added to that component
     requests = []
@@ -336,12 +345,8 @@ def renormalised_constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s:
     p2 = conv.use[2][0]
     if any(not _is_zero(t) for t in T.values()):    # one source for every D component
         requests += [("D", box, rho_s[box] * (1.0 / phi[box]**2 - 1.0), p2) for box in boxes]
-    if grid.dims == 2:      # batched with the boundary planes' convolutions
-        fields = constant_fields(grid, rho_s, v_s, D_s, lam, conv, D_source, passage_drift,
-                                 requests)
-    else:
-        fields = constant_fields(grid, rho_s, v_s, D_s, lam, conv, D_source)
-        add_requests(grid, fields, requests, conv, D_s, T)
+    fields = constant_fields(grid, rho_s, v_s, D_s, lam, conv, D_source)
+    add_requests(grid, fields, requests, conv, D_s, T)
     fields["_G"] = SpotFluxTensor(rho_s, D_s)
     fields["_phi"] = phi
     return fields
