@@ -18,8 +18,6 @@ from collections import OrderedDict
 import numpy as np
 import scipy.fft
 
-from ._fft import THREAD_MIN_SIZE, threads
-
 __all__ = ["box_convolutions", "add", "add_derivative"]
 
 _SPECTRA: OrderedDict = OrderedDict()
@@ -50,8 +48,8 @@ def box_convolutions(requests, stencils, shape) -> dict:
     of slices in grid indices (they may reach beyond the grid, e.g. ghost planes at index
     -1 or ``n``); ``stencils``: the centred stencils by key; ``shape``: the grid's. Sources
     of one stencil and box shape are stacked and transformed together (full convolution,
-    transform lengths ``scipy.fft.next_fast_len``; one thread below ``THREAD_MIN_SIZE``
-    points a transform). Returns ``{name: [(target slices, values), ...]}``, each box
+    transform lengths ``scipy.fft.next_fast_len``; one thread: the transforms are small,
+    a few stencils thick). Returns ``{name: [(target slices, values), ...]}``, each box
     widened by the stencil's half-widths and cut to the grid, to be added with :func:`add`
     (requests of one name are listed in turn).
     """
@@ -64,11 +62,10 @@ def box_convolutions(requests, stencils, shape) -> dict:
         full_shape = tuple(a + b - 1 for a, b in zip(sub_shape, stencil.shape))
         fshape = tuple(scipy.fft.next_fast_len(n, real=True) for n in full_shape)
         axes = tuple(range(1, stencil.ndim + 1))
-        workers = threads() if int(np.prod(fshape)) >= THREAD_MIN_SIZE else 1
         src = np.stack([requests[i][2] for i in members])
-        spec = scipy.fft.rfftn(src, fshape, axes=axes, workers=workers)
+        spec = scipy.fft.rfftn(src, fshape, axes=axes, workers=1)
         spec *= _spectrum(stencil, fshape)
-        full = scipy.fft.irfftn(spec, fshape, axes=axes, workers=workers)
+        full = scipy.fft.irfftn(spec, fshape, axes=axes, workers=1)
         for j, i in enumerate(members):
             name, box = requests[i][:2]
             dst, cut = [], []
