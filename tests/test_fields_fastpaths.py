@@ -245,3 +245,17 @@ def test_clip_roundoff_in_place_gives_the_copy_s_values():
         got = clip_roundoff(b, inplace=True)
         assert got is b
         np.testing.assert_array_equal(got, want)
+
+
+def test_rho_s_check_by_its_sum_still_finds_every_non_finite_value():
+    """``particle_fields`` checks ``rho_s`` by its sum first (one pass): NaN and infinities
+    are still refused, finite values whose sum overflows still accepted."""
+    grid = Grid(2, (-2.0, 2.0), (0.0, 2.0), 0.25)
+    kernel = _kernel("uniform", 2)
+    big = np.full(grid.shape, 1e306)                  # the sum overflows; all finite
+    C.particle_fields(grid, big, Spots(), kernel, diffusivity="mean-field")
+    for bad in (np.nan, np.inf, -np.inf):
+        rho = np.ones(grid.shape)
+        rho[3, 4] = bad
+        with pytest.raises(ValueError, match="rho_s: contains NaN"):
+            C.particle_fields(grid, rho, Spots(), kernel)

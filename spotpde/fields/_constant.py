@@ -7,6 +7,11 @@ transformed once per kernel stencil; what the one-sided differences at the bound
 change is a few planes, convolved directly. Private: ``coefficients.particle_fields``
 (truncated walls) and ``_walls.renormalised_constant_fields`` (renormalised walls of a
 rectangular silo) call :func:`constant_fields`.
+
+2D grids take :func:`fields_2d`: every field from one numba pass over the transform
+(read in place), the passage drift included, the boundary terms (and the renormalised
+walls' strips) as batched box convolutions (``_strips``). Measured cost and the
+comparison with the plain computations: docs/coefficients.md section 6.1.
 """
 
 from __future__ import annotations
@@ -19,7 +24,7 @@ from numba import njit
 
 from ..grid import Grid
 
-__all__ = ["constant_fields", "SpotFluxTensor"]
+__all__ = ["constant_fields", "fields_2d", "add_requests", "SpotFluxTensor"]
 
 
 class SpotFluxTensor(Mapping):
