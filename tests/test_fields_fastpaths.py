@@ -259,3 +259,23 @@ def test_rho_s_check_by_its_sum_still_finds_every_non_finite_value():
         rho[3, 4] = bad
         with pytest.raises(ValueError, match="rho_s: contains NaN"):
             C.particle_fields(grid, rho, Spots(), kernel)
+
+
+def test_parallel_one_pass_kernel_gives_the_serial_values():
+    """The row-split parallel kernel does the serial one's operations cell by cell."""
+    from spotpde.fields import _constant
+
+    rng = np.random.default_rng(9)
+    nz, nx = 37, 29
+    c, cD = rng.random((nz + 2, nx + 2)), rng.random((nz + 2, nx + 2))
+    coeffs = tuple(rng.normal(size=9))       # a0, gxx, gxz, gzx, gzz, px, pz, axx, azz
+    for same, cd in ((True, c), (False, cD)):
+        outs = []
+        for run in (lambda *a: _constant._fields_2d_kernel(*a, same),
+                    lambda *a: _constant._fields_2d_kernel_parallel(*a, same, 3)):
+            o = [np.full((nz, nx), np.nan) for _ in range(4)]
+            run(c, cd, 0.3, *coeffs, *o)
+            outs.append(o)
+        for a, b in zip(*outs):
+            assert np.all(np.isfinite(a))
+            np.testing.assert_array_equal(a, b)

@@ -20,7 +20,7 @@ from collections.abc import Mapping
 
 import numpy as np
 import scipy.signal
-from numba import njit
+from numba import njit, prange
 
 from ..grid import Grid
 
@@ -266,14 +266,32 @@ def _fields_2d_kernel(c, cD, h, a0, gxx, gxz, gzx, gzz, px, pz, axx, azz, ux, uz
     a multiple of ``w``), whose differences the drift already has: inner cells then take
     ``u_x = (gxx + px / 2h) dx + gxz dz`` (and ``u_z`` alike), the same sums to round-off.
     Inner cells run loops without branches; the boundary cells go through
-    :func:`_fields_2d_cell`. Serial: the pass is
-    bound by memory traffic, and a ``parallel=True`` build measured no faster on 2 cores.
+    :func:`_fields_2d_cell`. Serial; :func:`_fields_2d_kernel_parallel` splits the rows.
     """
+    _fields_2d_rows(c, cD, h, a0, gxx, gxz, gzx, gzz, px, pz, axx, azz, ux, uz, dxx, dzz,
+                    same, 0, ux.shape[0])
+
+
+@njit(parallel=True, cache=True, error_model="numpy")
+def _fields_2d_kernel_parallel(c, cD, h, a0, gxx, gxz, gzx, gzz, px, pz, axx, azz, ux, uz,
+                               dxx, dzz, same, chunks):
+    """:func:`_fields_2d_kernel` with its rows split into ``chunks`` blocks run in parallel
+    (the same operations cell by cell: the same values)."""
+    nz = ux.shape[0]
+    for t in prange(chunks):
+        _fields_2d_rows(c, cD, h, a0, gxx, gxz, gzx, gzz, px, pz, axx, azz, ux, uz, dxx, dzz,
+                        same, t * nz // chunks, (t + 1) * nz // chunks)
+
+
+@njit(cache=True, error_model="numpy")
+def _fields_2d_rows(c, cD, h, a0, gxx, gxz, gzx, gzz, px, pz, axx, azz, ux, uz, dxx, dzz,
+                    same, i0, i1):
+    """Rows ``i0 <= i < i1`` of :func:`_fields_2d_kernel`."""
     nz, nx = ux.shape
     h2 = 2.0 * h
     cxx, czz = gxx + px / h2, gzz + pz / h2
     wxx, wzz = dxx.shape[0] == nz, dzz.shape[0] == nz
-    for i in range(nz):
+    for i in range(i0, i1):
         if i == 0 or i == nz - 1:
             for j in range(nx):
                 _fields_2d_cell(c, cD, i, j, h, a0, gxx, gxz, gzx, gzz, px, pz, axx, azz,
@@ -374,10 +392,14 @@ def fields_2d(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, lam: floa
     with convolve_padded(rho_s, conv.stencils[1], 1, prepare=prepare) as c:
         cD = c if cD_own is None else cD_own
         none = np.empty((0, 0))
-        _fields_2d_kernel(c, cD, h, -float(v_s) * hd, g * d["D_xx"], g * d["D_xz"],
-                          g * d["D_xz"], g * d["D_zz"], px, pz, t["D_xx"] * kD,
-                          t["D_zz"] * kD, ux, uz, dxx if t["D_xx"] != 0.0 else none,
-                          dzz if t["D_zz"] != 0.0 else none, cD is c)
+        args = (c, cD, h, -float(v_s) * hd, g * d["D_xx"], g * d["D_xz"], g * d["D_xz"],
+                g * d["D_zz"], px, pz, t["D_xx"] * kD, t["D_zz"] * kD, ux, uz,
+                dxx if t["D_xx"] != 0.0 else none, dzz if t["D_zz"] != 0.0 else none, cD is c)
+        chunks = _kernel_threads()
+        if chunks > 1:          # cores free: the rows (and the outputs' first-touch page
+            _fields_2d_kernel_parallel(*args, chunks)     # faults) split between them
+        else:
+            _fields_2d_kernel(*args)
         dxz = ((t["D_xz"] * kD) * cD[1:-1, 1:-1] if t["D_xz"] != 0.0 else np.zeros(shape))
     fields = {"u_x": ux, "u_z": uz, "D_xx": dxx, "D_xz": dxz, "D_zz": dzz}
     requests = []
@@ -388,6 +410,16 @@ def fields_2d(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, lam: floa
                      for sl, r in strips]
     add_requests(grid, fields, requests, conv, D_s, D_src, passage_drift)
     return fields
+
+
+def _kernel_threads() -> int:
+    """Threads for the one-pass kernel: the transforms' (``_fft.threads``: the cores not
+    busy with other tasks), at most numba's."""
+    import numba
+
+    from ._fft import threads
+
+    return max(1, min(threads(), numba.get_num_threads()))
 
 
 def _boundary_sources(grid: Grid, rho_s: np.ndarray, d: Mapping, scale: float,
