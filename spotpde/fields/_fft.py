@@ -73,9 +73,10 @@ def threads() -> int:
     part: on the shared 2-core machine, with another process computing, a 1080 x 1080
     transform pair took 28 ms on two threads against 21 ms on one (and 13 ms on two when
     the machine was idle). So the cores in use are subtracted: the running count of
-    ``/proc/loadavg`` (runnable tasks at this instant, this one included), read only
-    when this process sees the whole machine (``os.cpu_count()`` cores in its affinity;
-    in a container restricted to some cores the count would be the host's).
+    ``/proc/loadavg`` (runnable tasks at this instant) less this process's own running
+    threads (:func:`_other_runnable`, about 0.1 ms), read only when this process sees the
+    whole machine (``os.cpu_count()`` cores in its affinity; in a container restricted to
+    some cores the count would be the host's).
     ``$SPOTPDE_FFT_THREADS`` (a positive integer) overrides it, e.g. to avoid
     oversubscription when several worker processes share the cores.
     """
@@ -92,14 +93,27 @@ def threads() -> int:
 
 
 def _other_runnable() -> int:
-    """Runnable tasks on the machine besides the calling thread (``/proc/loadavg``'s
-    running count less one); 0 if it cannot be read."""
+    """Runnable tasks of other processes: ``/proc/loadavg``'s running count less this
+    process's own running threads (the caller, and FFTW's workers, which keep spinning a
+    while after a transform); 0 if it cannot be read."""
     try:
         with open("/proc/loadavg") as fh:
             running = int(fh.read().split()[3].split("/")[0])
     except (OSError, ValueError, IndexError):
         return 0
-    return max(0, running - 1)
+    own = 1
+    try:
+        own = 0
+        for task in os.listdir("/proc/self/task"):
+            try:
+                with open(f"/proc/self/task/{task}/stat") as fh:
+                    stat = fh.read()
+            except OSError:         # the thread ended meanwhile
+                continue
+            own += stat[stat.rindex(")") + 2] == "R"
+    except (OSError, ValueError):
+        own = 1
+    return max(0, running - max(own, 1))
 
 
 def cache_dir() -> Path:
