@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 
-def clip_roundoff(a: np.ndarray, rel: float = 1e-9) -> np.ndarray:
+def clip_roundoff(a: np.ndarray, rel: float = 1e-9, *, inplace: bool = False) -> np.ndarray:
     """Set round-off negatives (``-rel * max|a| <= a < 0``) of a non-negative field to zero.
 
     Densities and the diagonal of a diffusivity tensor are non-negative by construction,
@@ -16,6 +16,8 @@ def clip_roundoff(a: np.ndarray, rel: float = 1e-9) -> np.ndarray:
     Args:
         a: the field.
         rel: the largest negative treated as round-off, relative to ``max|a|``.
+        inplace: zero them in ``a`` itself (which the caller owns) instead of a copy: the
+            same values without allocating another array.
 
     Returns:
         ``a`` with its round-off negatives zeroed (``a`` itself when it has none).
@@ -25,6 +27,11 @@ def clip_roundoff(a: np.ndarray, rel: float = 1e-9) -> np.ndarray:
         return a
     scale = max(float(a.max()), -float(lowest))
     if lowest >= -rel * scale:           # every negative is round-off: three passes in all
-        return np.maximum(a, 0.0)
+        return np.maximum(a, 0.0, out=a) if inplace else np.maximum(a, 0.0)
     tiny = (a < 0) & (a >= -rel * scale)
-    return np.where(tiny, 0.0, a) if np.any(tiny) else a
+    if not np.any(tiny):
+        return a
+    if inplace:
+        a[tiny] = 0.0
+        return a
+    return np.where(tiny, 0.0, a)

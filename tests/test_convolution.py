@@ -246,8 +246,22 @@ def test_falls_back_to_scipy_without_pyfftw(monkeypatch):
 
 
 def test_thread_count(monkeypatch):
+    import os
+
     monkeypatch.delenv("SPOTPDE_FFT_THREADS", raising=False)
-    assert _fft.threads() == len(__import__("os").sched_getaffinity(0))
+    cores = len(os.sched_getaffinity(0))
+    monkeypatch.setattr(_fft, "_other_runnable", lambda: 0)      # an idle machine
+    assert _fft.threads() == cores
+    # other tasks running: their cores are left to them (if this process sees the whole
+    # machine), never fewer than one thread
+    whole = cores == os.cpu_count()
+    monkeypatch.setattr(_fft, "_other_runnable", lambda: 1)
+    assert _fft.threads() == (max(1, cores - 1) if whole else cores)
+    monkeypatch.setattr(_fft, "_other_runnable", lambda: 10 * cores)
+    assert _fft.threads() == (1 if whole else cores)
+    monkeypatch.undo()
+    assert 0 <= _fft._other_runnable()
+    monkeypatch.setattr(_fft, "_other_runnable", lambda: 10 * cores)
     monkeypatch.setenv("SPOTPDE_FFT_THREADS", "1")
     assert _fft.threads() == 1
     monkeypatch.setenv("SPOTPDE_FFT_THREADS", "many")  # ignored

@@ -112,8 +112,8 @@ def steady_flux(grid: Grid, orifice: Orifice, b: float, Q0: float = 1.0,
     k1 = (np.pi * np.arange(n * blocks) / L) ** 2
     k2 = k1 if grid.dims == 2 else k1[:, None] + k1[None, :]
     half = np.where(np.arange(n) == 0, 1.0, 0.5)
-    if grid.dims == 2:
-        c = _live_modes(k1[:n], zeta, b, b_par, H) * a[None, :]
+    if grid.dims == 2:      # (profile * a) * half, block by block (no whole-grid passes)
+        c = _live_modes(k1[:n], zeta, b, b_par, H, factors=(a, half))
     elif b_par == 0:            # separable: exp(-b (kx^2 + ky^2) z) = product
         decay = np.exp(-b * zeta[:, None] * k1[None, :n])
         c = a[None, :, :] * decay[:, :, None] * decay[:, None, :]
@@ -125,7 +125,10 @@ def steady_flux(grid: Grid, orifice: Orifice, b: float, Q0: float = 1.0,
         sl = (slice(0, m),) * (grid.dims - 1)
         full = a_full[sl] * mode_profile(k2[sl], zeta[k], b, b_par, H)
         c[k] = _fold_modes(full, n, grid.dims - 1)
-    c *= half if grid.dims == 2 else half[:, None] * half[None, :]
+        if grid.dims == 2:
+            c[k] *= half
+    if grid.dims == 3:
+        c *= half[:, None] * half[None, :]
     if grid.dims == 2:
         return scipy.fft.dct(c, type=3, axis=-1, workers=WORKERS, overwrite_x=True)
     return scipy.fft.dctn(c, type=3, axes=(1, 2), workers=WORKERS, overwrite_x=True)
@@ -136,7 +139,7 @@ UNDERFLOW_EXPONENT = 746.0
 
 
 def _live_modes(k2: np.ndarray, zeta: np.ndarray, b: float, b_par: float, H: float,
-                rows: int = 32) -> np.ndarray:
+                rows: int = 32, factors=()) -> np.ndarray:
     """``mode_profile(k2[None, :], zeta[:, None], ...)``, skipping modes that underflow.
 
     Mode ``k`` at height ``zeta`` is at most ``2 exp(-decay_rate(k) zeta)`` (both terms of
@@ -144,6 +147,8 @@ def _live_modes(k2: np.ndarray, zeta: np.ndarray, b: float, b_par: float, H: flo
     exponent passes ``UNDERFLOW_EXPONENT``; higher up ever fewer modes survive (``k`` up to
     ``sqrt(746 / (b zeta))``), so blocks of ``rows`` rows evaluate only their first row's
     surviving modes. Equal to the full evaluation to within the smallest subnormal.
+    ``factors``: per-mode arrays multiplied in turn into each block (the same products,
+    bit for bit, as multiplying the whole result by each, without its passes).
     """
     rate = decay_rate(k2, b, b_par)
     out = np.zeros((zeta.size, k2.size))
@@ -151,8 +156,10 @@ def _live_modes(k2: np.ndarray, zeta: np.ndarray, b: float, b_par: float, H: flo
         z = zeta[start:start + rows]
         live = int(np.count_nonzero(rate * z[0] < UNDERFLOW_EXPONENT))
         if live:
-            out[start:start + rows, :live] = mode_profile(k2[None, :live], z[:, None], b,
-                                                          b_par, H)
+            block = mode_profile(k2[None, :live], z[:, None], b, b_par, H)
+            for f in factors:
+                block *= f[:live]
+            out[start:start + rows, :live] = block
     return out
 
 

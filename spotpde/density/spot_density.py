@@ -170,7 +170,7 @@ def steady(grid: Grid, orifice: Orifice, spots: Spots, progress: Progress = None
     g, (v, b, b_par), crop = _pad(grid, spots)
     if _is_uniform(b) and _is_uniform(b_par) and (_is_zero(b_par) or _is_uniform(v)):
         phi = _spectral.steady_flux(g, orifice, float(np.ravel(b)[0]), Q0, float(np.ravel(b_par)[0]))
-        rho = phi / v
+        rho = np.divide(phi, v, out=phi)     # phi is ours: divided in place
     elif _is_zero(b_par):
         bb = np.broadcast_to(np.asarray(b, dtype=float), g.shape)
         phi = _marching.march(Q0 * source_profile(g, orifice), bb, g.spacing, progress)

@@ -7,6 +7,11 @@ transformed once per kernel stencil; what the one-sided differences at the bound
 change is a few planes, convolved directly. Private: ``coefficients.particle_fields``
 (truncated walls) and ``_walls.renormalised_constant_fields`` (renormalised walls of a
 rectangular silo) call :func:`constant_fields`.
+
+2D grids take :func:`fields_2d`: every field from one numba pass over the transform
+(read in place), the passage drift included, the boundary terms (and the renormalised
+walls' strips) as batched box convolutions (``_strips``). Measured cost and the
+comparison with the plain computations: docs/coefficients.md section 6.1.
 """
 
 from __future__ import annotations
@@ -15,10 +20,11 @@ from collections.abc import Mapping
 
 import numpy as np
 import scipy.signal
+from numba import njit, prange
 
 from ..grid import Grid
 
-__all__ = ["constant_fields", "SpotFluxTensor"]
+__all__ = ["constant_fields", "fields_2d", "add_requests", "SpotFluxTensor"]
 
 
 class SpotFluxTensor(Mapping):
@@ -72,6 +78,27 @@ def _boundary_planes(grid: Grid, rho_p: np.ndarray, comp: str) -> list[tuple[int
             (n + 1, -e0 / (2.0 * h))]
 
 
+def _grid_boundary_planes(grid: Grid, rho_s: np.ndarray, comp: str) -> list:
+    """:func:`_boundary_planes` of ``np.pad(rho_s, 1)`` without padding the whole grid:
+    each plane is one layer of ``rho_s`` padded by one cell along the other axes."""
+    from .coefficients import _axis
+
+    axis = _axis(grid, comp)
+    h, n = grid.spacing, rho_s.shape[axis]
+
+    def plane(i):
+        return np.pad(np.take(rho_s, i, axis=axis), 1)
+
+    r0, r1, r2 = plane(0), plane(1), plane(2)
+    e0, e1, e2 = plane(n - 1), plane(n - 2), plane(n - 3)
+    g_lo = (-1.5 * r0 + 2.0 * r1 - 0.5 * r2) / h
+    g_hi = (1.5 * e0 - 2.0 * e1 + 0.5 * e2) / h
+    return [(0, r0 / (2.0 * h)),
+            (1, r1 / (2.0 * h) - g_lo),
+            (n, -e1 / (2.0 * h) - g_hi),
+            (n + 1, -e0 / (2.0 * h))]
+
+
 def _inner_all(ndim: int) -> list[slice]:
     return [slice(1, -1)] * ndim
 
@@ -111,7 +138,8 @@ def _subtract_planes(target: np.ndarray, stencil: np.ndarray, planes, axis: int,
 
 
 def constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, lam: float,
-                     conv, D_source: Mapping | None = None) -> dict[str, np.ndarray]:
+                     conv, D_source: Mapping | None = None, passage_drift: bool = False,
+                     strips=None) -> dict[str, np.ndarray]:
     """``u_p`` and ``D_p`` for constant ``v_s`` and ``D_s`` from one convolution per stencil.
 
     With constant coefficients ``w * div(D_s rho_s) = D_s^ab w * d_b rho_s``, and the
@@ -121,9 +149,17 @@ def constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, lam
     one cell gives ``u_z``, every ``w * d_b rho_s`` and (``w**2`` proportional to ``w``, or one
     more transform) ``D_p``; the plane terms are cheap 1D/2D convolutions. Identical to
     the general path to round-off. ``D_source`` (default ``D_s``): the constant tensor
-    ``T`` of ``D_p = w^2 * (rho_s T)`` (the passage diffusivity's ``v_s b_eff``).
+    ``T`` of ``D_p = w^2 * (rho_s T)`` (the passage diffusivity's ``v_s b_eff``). 2D grids
+    take :func:`fields_2d` (one pass over the transform), which with ``passage_drift``
+    also adds the passage drift ``div(D_p - D_p_mf)`` and with ``strips`` renormalises the
+    walls; both need a 2D grid.
     """
     from .coefficients import _COMPONENTS, _axis, _is_zero, _pair
+
+    if grid.dims == 2:
+        return fields_2d(grid, rho_s, v_s, D_s, lam, conv, D_source, passage_drift, strips)
+    if passage_drift or strips is not None:
+        raise ValueError("passage_drift: the fused passage drift and strips need a 2D grid")
 
     comps = _COMPONENTS[grid.dims]
     h = grid.spacing
@@ -175,3 +211,306 @@ def constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, lam
     return fields
 
 
+
+
+# -- 2D: every field in one pass over the transform --------------------------------------
+
+@njit(cache=True, error_model="numpy")
+def _fields_2d_cell(c, cD, i, j, h, a0, gxx, gxz, gzx, gzz, px, pz, axx, azz,
+                    ux, uz, dxx, dzz):
+    """One cell of :func:`_fields_2d_kernel`, any position (one-sided differences of
+    ``cD`` on the boundary cells)."""
+    nz, nx = ux.shape
+    h2 = 2.0 * h
+    ea, eb, ec = -1.5 / h, 2.0 / h, -0.5 / h
+    k, q = i + 1, j + 1
+    dx = c[k, q + 1] - c[k, q - 1]
+    dz = c[k + 1, q] - c[k - 1, q]
+    f = cD[k, q]
+    if j == 0:
+        fx = ea * f + eb * cD[k, 2] + ec * cD[k, 3]
+    elif j == nx - 1:
+        fx = -ec * cD[k, nx - 2] - eb * cD[k, nx - 1] - ea * f
+    else:
+        fx = (cD[k, q + 1] - cD[k, q - 1]) / h2
+    if i == 0:
+        fz = ea * f + eb * cD[2, q] + ec * cD[3, q]
+    elif i == nz - 1:
+        fz = -ec * cD[nz - 2, q] - eb * cD[nz - 1, q] - ea * f
+    else:
+        fz = (cD[k + 1, q] - cD[k - 1, q]) / h2
+    ux[i, j] = gxx * dx + gxz * dz + px * fx
+    uz[i, j] = a0 * c[k, q] + gzx * dx + gzz * dz + pz * fz
+    if dxx.shape[0] == nz:
+        dxx[i, j] = axx * f
+    if dzz.shape[0] == nz:
+        dzz[i, j] = azz * f
+
+
+@njit(cache=True, error_model="numpy")
+def _fields_2d_kernel(c, cD, h, a0, gxx, gxz, gzx, gzz, px, pz, axx, azz, ux, uz, dxx, dzz,
+                      same=False):
+    """One pass over the padded convolutions ``c = w * psi~`` (drift) and ``cD`` (``D_p``).
+
+    For every grid cell ``(i, j)`` (padded index ``(i + 1, j + 1)``), with the central
+    differences ``dx = c[., j+2] - c[., j]``, ``dz = c[i+2, .] - c[i, .]`` of the padded
+    transform and ``Dx, Dz`` the second-order grid derivatives of ``cD`` on the grid
+    (``grid.derivative``'s formulas: one-sided on the boundary cells)::
+
+        u_x  = gxx dx + gxz dz + px Dx
+        u_z  = a0 c + gzx dx + gzz dz + pz Dz
+        D_xx = axx cD,   D_zz = azz cD
+
+    ``D_xx`` (``D_zz``) is written only if ``dxx`` (``dzz``) is grid-shaped (an empty
+    array: the caller's zeros). ``same``: ``cD`` is ``c`` (the uniform kernel: ``w**2``
+    a multiple of ``w``), whose differences the drift already has: inner cells then take
+    ``u_x = (gxx + px / 2h) dx + gxz dz`` (and ``u_z`` alike), the same sums to round-off.
+    Inner cells run loops without branches; the boundary cells go through
+    :func:`_fields_2d_cell`. Serial; :func:`_fields_2d_kernel_parallel` splits the rows.
+    """
+    _fields_2d_rows(c, cD, h, a0, gxx, gxz, gzx, gzz, px, pz, axx, azz, ux, uz, dxx, dzz,
+                    same, 0, ux.shape[0])
+
+
+@njit(parallel=True, cache=True, error_model="numpy")
+def _fields_2d_kernel_parallel(c, cD, h, a0, gxx, gxz, gzx, gzz, px, pz, axx, azz, ux, uz,
+                               dxx, dzz, same, chunks):
+    """:func:`_fields_2d_kernel` with its rows split into ``chunks`` blocks run in parallel
+    (the same operations cell by cell: the same values)."""
+    nz = ux.shape[0]
+    for t in prange(chunks):
+        _fields_2d_rows(c, cD, h, a0, gxx, gxz, gzx, gzz, px, pz, axx, azz, ux, uz, dxx, dzz,
+                        same, t * nz // chunks, (t + 1) * nz // chunks)
+
+
+@njit(cache=True, error_model="numpy")
+def _fields_2d_rows(c, cD, h, a0, gxx, gxz, gzx, gzz, px, pz, axx, azz, ux, uz, dxx, dzz,
+                    same, i0, i1):
+    """Rows ``i0 <= i < i1`` of :func:`_fields_2d_kernel`."""
+    nz, nx = ux.shape
+    h2 = 2.0 * h
+    cxx, czz = gxx + px / h2, gzz + pz / h2
+    wxx, wzz = dxx.shape[0] == nz, dzz.shape[0] == nz
+    for i in range(i0, i1):
+        if i == 0 or i == nz - 1:
+            for j in range(nx):
+                _fields_2d_cell(c, cD, i, j, h, a0, gxx, gxz, gzx, gzz, px, pz, axx, azz,
+                                ux, uz, dxx, dzz)
+            continue
+        k = i + 1
+        cm, c0, cp = c[k - 1], c[k], c[k + 1]
+        dm, d0, dp = cD[k - 1], cD[k], cD[k + 1]
+        uxr, uzr = ux[i], uz[i]
+        if same:                        # cD is c: its differences are dx, dz, so the
+            for q in range(2, nx):      # factors add up (fewer rows to read and flops)
+                dx = c0[q + 1] - c0[q - 1]
+                dz = cp[q] - cm[q]
+                uxr[q - 1] = cxx * dx + gxz * dz
+                uzr[q - 1] = a0 * c0[q] + gzx * dx + czz * dz
+        else:
+            for q in range(2, nx):      # padded column q: grid column j = q - 1
+                dx = c0[q + 1] - c0[q - 1]
+                dz = cp[q] - cm[q]
+                fx = (d0[q + 1] - d0[q - 1]) / h2
+                fz = (dp[q] - dm[q]) / h2
+                uxr[q - 1] = gxx * dx + gxz * dz + px * fx
+                uzr[q - 1] = a0 * c0[q] + gzx * dx + gzz * dz + pz * fz
+        if wxx:
+            dxr = dxx[i]
+            for q in range(2, nx):
+                dxr[q - 1] = axx * d0[q]
+        if wzz:
+            dzr = dzz[i]
+            for q in range(2, nx):
+                dzr[q - 1] = azz * d0[q]
+        for j in (0, nx - 1):
+            _fields_2d_cell(c, cD, i, j, h, a0, gxx, gxz, gzx, gzz, px, pz, axx, azz,
+                            ux, uz, dxx, dzz)
+
+
+def fields_2d(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, lam: float, conv,
+              D_source: Mapping | None = None, passage_drift: bool = False, strips=None
+              ) -> dict[str, np.ndarray]:
+    """:func:`constant_fields` of a 2D grid, every field from one pass over the transform.
+
+    The same sums, reordered to round-off: ``u_a = 2 lam sum_b D_s^ab (delta_b(w * psi~)
+    h^2 / 2h - w * B_b)`` and ``D^ab = T^ab c2 h^2 (w * psi~)`` are formed cell by cell
+    from the transform of ``psi = rho_s`` (:func:`_fields_2d_kernel`, numba, one pass
+    writing each field once) instead of one whole-grid numpy pass per operation; ``B_b``,
+    what the central difference of the zero-extended ``psi`` gets wrong near the
+    boundaries, are box convolutions (``_strips``, batched; :func:`_boundary_sources`).
+    ``passage_drift``: also add ``div(D_p - D_p_mf)`` (``_passage.keep_flux_velocity``;
+    ``D_p - D_p_mf = (T - D_s) c2 h^2 (w * psi~ + strips)`` for constant tensors), the
+    transform's part as second-order grid derivatives in the same pass.
+
+    ``strips`` (the renormalised walls of a rectangular silo, ``_walls``): ``[(column
+    slice, r), ...]`` with ``r = 1/phi`` on those columns (``phi = 1`` elsewhere). Then
+    ``psi = rho_s r``, so ``u_z = -v_s h^2 w * psi~`` needs no correction,
+    ``B_x = delta_x psi~ - (r grad_x rho_s)~`` lives on the strips widened by one cell (and
+    the ghost columns), ``B_z`` on the planes of ``psi`` at the floor and top (``r``
+    depends on ``x`` only), and ``D_p`` adds ``w^2 * (psi (r - 1))`` on the strips: the
+    sources of :func:`spotpde.fields._walls.renormalised_fields` (``rho_s / phi``,
+    ``div(D_s rho_s) / phi``, ``rho_s / phi^2``) to round-off, with two strip transforms
+    per wall instead of three and the planes'.
+
+    The transform is read in place (``convolution.convolve_padded``; ``r`` applied to the
+    strip columns of its input buffer): no padded copy of ``rho_s``, no copy of the result.
+    """
+    from .coefficients import _is_zero
+    from .convolution import convolve, convolve_padded
+
+    h = grid.spacing
+    hd = h * h
+    D_src = D_s if D_source is None else D_source
+
+    def val(m, key):
+        return 0.0 if _is_zero(m.get(key, 0.0)) else float(m[key])
+
+    d = {k: val(D_s, k) for k in ("D_xx", "D_xz", "D_zz")}
+    t = {k: val(D_src, k) for k in ("D_xx", "D_xz", "D_zz")}
+    p2, c2 = conv.use[2]
+    g = lam * hd / h            # 2 lam D^ab (h^2 / 2h) per unit D^ab
+    kD = c2 * hd
+    px = (t["D_xx"] - d["D_xx"]) * kD if passage_drift else 0.0
+    pz = (t["D_zz"] - d["D_zz"]) * kD if passage_drift else 0.0
+    shape = grid.shape
+    strips = [(sl, r) for sl, r in (strips or ()) if sl.stop > sl.start]
+
+    def prepare(psi):           # rho_s -> psi = rho_s r, on the strip columns only
+        for sl, r in strips:
+            psi[:, sl] *= r
+
+    ux, uz = np.empty(shape), np.empty(shape)
+    # a D component that vanishes is the zero array (untouched pages: no writing pass)
+    dxx, dzz = (np.empty(shape) if t[k] != 0.0 else np.zeros(shape) for k in ("D_xx", "D_zz"))
+    need_D = any(v != 0.0 for v in t.values()) or px != 0.0 or pz != 0.0
+    cD_own = None
+    if need_D and p2 != 1:      # w**2 not a multiple of w: its own transform (a copy)
+        psi = np.pad(rho_s, 1)
+        prepare(psi[1:-1, 1:-1])
+        cD_own = convolve(psi, conv.stencils[2], mode="linear")
+    with convolve_padded(rho_s, conv.stencils[1], 1, prepare=prepare) as c:
+        cD = c if cD_own is None else cD_own
+        none = np.empty((0, 0))
+        args = (c, cD, h, -float(v_s) * hd, g * d["D_xx"], g * d["D_xz"], g * d["D_xz"],
+                g * d["D_zz"], px, pz, t["D_xx"] * kD, t["D_zz"] * kD, ux, uz,
+                dxx if t["D_xx"] != 0.0 else none, dzz if t["D_zz"] != 0.0 else none, cD is c)
+        chunks = _kernel_threads()
+        if chunks > 1:          # cores free: the rows (and the outputs' first-touch page
+            _fields_2d_kernel_parallel(*args, chunks)     # faults) split between them
+        else:
+            _fields_2d_kernel(*args)
+        dxz = ((t["D_xz"] * kD) * cD[1:-1, 1:-1] if t["D_xz"] != 0.0 else np.zeros(shape))
+    fields = {"u_x": ux, "u_z": uz, "D_xx": dxx, "D_xz": dxz, "D_zz": dzz}
+    requests = []
+    if lam != 0.0:              # - 2 lam D_s^ab h^2 w * B_b
+        requests += _boundary_sources(grid, rho_s, d, lam * 2.0 * hd, strips)
+    if need_D:                  # D_p: w^2 * (psi (r - 1)) on the strips
+        requests += [("D", (slice(0, shape[0]), sl), rho_s[:, sl] * r * (r - 1.0), p2)
+                     for sl, r in strips]
+    add_requests(grid, fields, requests, conv, D_s, D_src, passage_drift)
+    return fields
+
+
+def _kernel_threads() -> int:
+    """Threads for the one-pass kernel: the transforms' (``_fft.threads``: the cores not
+    busy with other tasks), at most numba's."""
+    import numba
+
+    from ._fft import threads
+
+    return max(1, min(threads(), numba.get_num_threads()))
+
+
+def _boundary_sources(grid: Grid, rho_s: np.ndarray, d: Mapping, scale: float,
+                      strips) -> list:
+    """``B_b`` of :func:`fields_2d` as box requests ``(("u_a", -scale D_s^ab), box, B_b, 1)``.
+
+    Without strips ``B_b`` is the boundary-plane source ``c_b`` of
+    :func:`_grid_boundary_planes` (two planes at each end of axis ``b``: the ghost plane
+    at index -1 or ``n`` and the boundary cells). With strips (``psi = rho_s r``):
+    ``B_z`` is ``c_z`` of ``psi``; ``B_x = delta_x psi~ - (r grad_x rho_s)~``, computed on the
+    strips widened by one cell (merged where they meet), is ``c_x`` where ``r = 1``.
+    """
+    from ._walls import _box_derivative
+
+    nz, nx = grid.shape
+    h = grid.spacing
+    r_row = np.ones(nx)
+    for sl, r in strips:
+        r_row[sl] = r
+    out = []
+    for b, axis in (("x", 1), ("z", 0)):
+        coeffs = {a: d[_key(a, b)] for a in ("x", "z") if d[_key(a, b)] != 0.0}
+        if not coeffs:
+            continue
+        boxes = []
+        if b == "z" or not strips:
+            n = grid.shape[axis]
+            src = rho_s
+            if b == "z":        # the three rows at each end (of psi: r depends on x only)
+                src = np.concatenate([rho_s[:3], rho_s[-3:]]) * r_row[None, :]
+            ns = src.shape[axis]
+            planes = dict(_grid_boundary_planes(grid, src, b))
+            for lo, (p, q) in ((-1, (0, 1)), (n - 1, (ns, ns + 1))):
+                box = [slice(0, nz), slice(0, nx)]
+                box[axis] = slice(lo, lo + 2)
+                boxes.append((tuple(box),
+                              np.stack([planes[p][1:-1], planes[q][1:-1]], axis=axis)))
+        else:
+            spans = []          # the strips widened by one cell, merged where they meet
+            for sl, _ in sorted(strips, key=lambda s: s[0].start):
+                lo, hi = max(-1, sl.start - 1), min(nx + 1, sl.stop + 1)
+                if spans and lo <= spans[-1][1]:
+                    spans[-1][1] = max(spans[-1][1], hi)
+                else:
+                    spans.append([lo, hi])
+            for lo, hi in spans:
+                psi = np.zeros((nz, hi - lo + 2))               # psi~ on lo - 1 ... hi
+                a0, a1 = max(0, lo - 1), min(nx, hi + 1)
+                psi[:, a0 - (lo - 1):a1 - (lo - 1)] = rho_s[:, a0:a1] * r_row[a0:a1]
+                B = (psi[:, 2:] - psi[:, :-2]) / (2.0 * h)      # delta_x psi~ on lo ... hi - 1
+                g0, g1 = max(0, lo), min(nx, hi)                # minus (r grad_x rho_s)~
+                B[:, g0 - lo:g1 - lo] -= (_box_derivative(rho_s, h, (slice(0, nz),
+                                                                      slice(g0, g1)), 1)
+                                          * r_row[g0:g1])
+                boxes.append(((slice(0, nz), slice(lo, hi)), B))
+        for box, values in boxes:
+            out += [((f"u_{a}", -scale * dab), box, values, 1) for a, dab in coeffs.items()]
+    return out
+
+
+def add_requests(grid: Grid, fields: dict, requests, conv, D_s: Mapping, T: Mapping,
+                 passage_drift: bool = False) -> None:
+    """Add the box convolutions of ``requests`` (``_strips.box_convolutions``) to ``fields``.
+
+    Requests named ``("u_a", factor)`` are added to ``u_a`` times ``factor``; those named
+    ``"D"`` (one source for every ``D_p`` component) to every ``D^ab`` times
+    ``T^ab c2 h^dims``, and with ``passage_drift`` (2D) their derivatives times
+    ``(T - D_s)^aa c2 h^2`` to ``u_a`` (the passage drift ``div(D_p - D_p_mf)``).
+    """
+    from . import _strips
+    from .coefficients import _is_zero
+
+    if not requests:
+        return
+    hd = grid.spacing**grid.dims
+    c2 = conv.use[2][1]
+    parts = _strips.box_convolutions(requests, conv.stencils, grid.shape)
+    for name, pieces in parts.items():
+        if name != "D":
+            _strips.add(fields[name[0]], pieces, name[1])
+    D_parts = parts.get("D", [])
+    for key, t in T.items():
+        if not _is_zero(t):
+            _strips.add(fields[key], D_parts, float(t) * c2 * hd)
+    if passage_drift and D_parts:
+        for key, comp in (("D_xx", "x"), ("D_zz", "z")):
+            t, d = (0.0 if _is_zero(m[key]) else float(m[key]) for m in (T, D_s))
+            if t != d:
+                _strips.add_derivative(fields[f"u_{comp}"], D_parts, grid.spacing,
+                                       grid.axes.index(comp), (t - d) * c2 * hd)
+
+
+def _key(a: str, b: str) -> str:
+    return "D_xz" if a != b else f"D_{a}{a}"

@@ -39,11 +39,9 @@ from __future__ import annotations
 from typing import Mapping
 
 import numpy as np
-import scipy.fft
 import scipy.integrate
 import scipy.signal
 
-from ._fft import threads
 from ..grid import Grid
 
 __all__ = ["WALL_TREATMENTS", "check_walls", "renormalises", "coverage", "face_value",
@@ -120,9 +118,15 @@ def coverage(grid: Grid, kernel, mask: np.ndarray | None = None) -> np.ndarray:
             raise ValueError("mask: values must lie in [0, 1] (material fraction of a cell)")
     widths = [(n - 1) // 2 for n in stencil.shape]
     reflecting = set(range(1, grid.dims)) if grid.walls == "reflecting" else set()
-    padded = _pad(chi, widths, reflecting)
-    # w even: sum_j s_j chi_(i+j) = sum_j s_j chi_(i-j), a 'valid' correlation = convolution
-    phi = scipy.signal.fftconvolve(padded, stencil, mode="valid") / total
+    if mask is None and grid.dims == 2:
+        # chi is one row continued up and down (edge padding): the 'valid' sum over the
+        # stencil's rows is the 1D convolution of that row with the stencil's column sums
+        row = _pad(chi, [0, widths[1]], reflecting)[0]
+        phi = np.convolve(row, stencil.sum(axis=0), mode="valid")[None, :] / total
+    else:
+        padded = _pad(chi, widths, reflecting)
+        # w even: sum_j s_j chi_(i+j) = sum_j s_j chi_(i-j), a 'valid' correlation = convolution
+        phi = scipy.signal.fftconvolve(padded, stencil, mode="valid") / total
     inside = chi > 0 if mask is not None else np.ones(phi.shape, bool)
     if np.any(phi[np.broadcast_to(inside, phi.shape)] <= 1e-12):
         raise ValueError("mask: a material cell has no material within the kernel's reach")
@@ -287,53 +291,17 @@ def _box_derivative(f: np.ndarray, h: float, box, axis: int) -> np.ndarray:
     return derivative(f[tuple(wide)], h, axis)[tuple(crop)]
 
 
-def _box_convolutions(requests, stencils, shape) -> dict:
-    """Linear convolutions of sources supported on disjoint boxes, batched.
-
-    ``requests``: ``[(name, box, source on the box, stencil key), ...]``; ``stencils``: the
-    centred stencils by key; ``shape``: the grid's. Sources of one stencil and box shape
-    are stacked and transformed together (``scipy.signal.fftconvolve``, full): exact, and
-    cheap for boxes a few stencils thick. Returns ``{name: [(target slices, values),
-    ...]}``, each box widened by the stencil's half-widths and cut to the grid, to be added
-    with :func:`_add`.
-    """
-    groups: dict = {}
-    for i, (_, _, sub, key) in enumerate(requests):
-        groups.setdefault((key, sub.shape), []).append(i)
-    out: dict = {}
-    for (key, _), members in groups.items():
-        stencil = stencils[key]
-        axes = tuple(range(1, stencil.ndim + 1))
-        with scipy.fft.set_workers(threads()):
-            full = scipy.signal.fftconvolve(np.stack([requests[i][2] for i in members]),
-                                            stencil[None], mode="full", axes=axes)
-        for j, i in enumerate(members):
-            name, box = requests[i][:2]
-            dst, src = [], []
-            for sl, k_s, n, k in zip(box, stencil.shape, shape, full.shape[1:]):
-                start = sl.start - (k_s - 1) // 2              # grid index of full[0]
-                lo, hi = max(0, start), min(n, start + k)
-                dst.append(slice(lo, hi))
-                src.append(slice(lo - start, hi - start))
-            out.setdefault(name, []).append((tuple(dst), full[j][tuple(src)]))
-    return out
-
-
-def _add(target: np.ndarray, parts, factor: float) -> None:
-    for dst, values in parts:
-        target[dst] += factor * values
-
-
 def renormalised_constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping,
                                  lam: float, conv, phi: np.ndarray,
-                                 D_source: Mapping | None = None) -> dict[str, np.ndarray]:
+                                 D_source: Mapping | None = None,
+                                 passage_drift: bool = False) -> dict[str, np.ndarray]:
     """:func:`renormalised_fields` of a rectangular silo with constant ``v_s``, ``D_s``, ``T``.
 
     ``S / phi = S + S (1/phi - 1)`` for every source ``S``, and ``1/phi - 1`` (``1/phi^2 - 1``)
     vanishes except within a stencil half-width of the reflecting side walls. So the fields
     are the truncated ones of ``_constant.constant_fields`` (one transform of ``rho_s``
     per stencil) plus the convolutions of the sources times ``1/phi - 1`` over those wall
-    strips (:func:`_box_convolutions`)::
+    strips (``_strips.box_convolutions``)::
 
         u_z   += -v_s  w   * (rho_s (1/phi - 1))
         u_a   += 2 lam w   * (div_a(D_s rho_s) (1/phi - 1))
@@ -342,15 +310,26 @@ def renormalised_constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s:
     with ``div`` the same second-order differences as the general path (one-sided at the
     walls). Equal to :func:`renormalised_fields` to round-off (``phi`` is 1 to round-off
     away from the walls); whole-grid transforms drop from one per source to one per
-    stencil. Also returns ``"_G"`` and ``"_phi"``.
+    stencil. 2D grids take ``_constant.fields_2d`` with the strips' ``1/phi``: it
+    transforms ``rho_s / phi`` itself (``1/phi`` applied to the strip columns of the
+    transform's input), so ``u_z`` needs no strip and the drift's strips absorb the
+    boundary planes (two strip transforms per wall instead of three); with
+    ``passage_drift`` it also adds the passage drift ``div(D_p - D_p_mf)``
+    (``_passage.keep_flux_velocity``). Also returns ``"_G"`` and ``"_phi"``.
     """
-    from ._constant import SpotFluxTensor, constant_fields
+    from ._constant import SpotFluxTensor, add_requests, constant_fields
     from .coefficients import _COMPONENTS, _is_zero, _pair
 
+    boxes = _wall_boxes(grid, [(k - 1) // 2 for k in conv.stencils[1].shape])
+    if grid.dims == 2:      # 1/phi on the strip columns multiplies the one transform's input
+        strips = [(box[1], 1.0 / phi[0, box[1]]) for box in boxes]
+        fields = constant_fields(grid, rho_s, v_s, D_s, lam, conv, D_source, passage_drift,
+                                 strips)
+        fields["_G"] = SpotFluxTensor(rho_s, D_s)
+        fields["_phi"] = phi
+        return fields
     comps = _COMPONENTS[grid.dims]
     h, hd = grid.spacing, grid.spacing**grid.dims
-    fields = constant_fields(grid, rho_s, v_s, D_s, lam, conv, D_source)
-    boxes = _wall_boxes(grid, [(k - 1) // 2 for k in conv.stencils[1].shape])
     eps1 = [1.0 / phi[box] - 1.0 for box in boxes]
     # requests are named by (drift component, factor): each is added to that component
     requests = []
@@ -363,16 +342,11 @@ def renormalised_constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s:
                 d * _box_derivative(rho_s, h, box, grid.axes.index(b)) for b, d in coeffs.items()),
                 1) for box, e in zip(boxes, eps1)]
     T = D_s if D_source is None else D_source
-    p2, c2 = conv.use[2]
+    p2 = conv.use[2][0]
     if any(not _is_zero(t) for t in T.values()):    # one source for every D component
         requests += [("D", box, rho_s[box] * (1.0 / phi[box]**2 - 1.0), p2) for box in boxes]
-    parts = _box_convolutions(requests, conv.stencils, grid.shape)
-    for name, pieces in parts.items():
-        if name != "D":
-            _add(fields[name[0]], pieces, name[1])
-    for key, t in T.items():
-        if not _is_zero(t):
-            _add(fields[key], parts.get("D", []), float(t) * c2 * hd)
+    fields = constant_fields(grid, rho_s, v_s, D_s, lam, conv, D_source)
+    add_requests(grid, fields, requests, conv, D_s, T)
     fields["_G"] = SpotFluxTensor(rho_s, D_s)
     fields["_phi"] = phi
     return fields

@@ -117,7 +117,9 @@ def _check_inputs(grid: Grid, rho_s: np.ndarray, kernel) -> np.ndarray:
     if rho_s.shape != grid.shape:
         raise ValueError(f"rho_s: array shape {rho_s.shape} does not match the grid shape "
                          f"{grid.shape} (array order {grid.axes})")
-    if not np.all(np.isfinite(rho_s)):
+    # a finite sum means every value is finite (one pass); an overflowing sum of finite
+    # values only sends the check to the element test
+    if not (np.isfinite(np.sum(rho_s)) or np.all(np.isfinite(rho_s))):
         raise ValueError("rho_s: contains NaN or infinite values")
     if getattr(kernel, "dims", grid.dims) != grid.dims:
         raise ValueError(f"kernel: built for dims={kernel.dims} but the grid has dims={grid.dims}")
@@ -429,31 +431,34 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
     if D_source is not None:
         constant = constant and all(np.ndim(d) == 0 for d in D_source.values())
     constant = constant and min(grid.shape) >= 3    # the one-transform paths need 3 cells
+    # 2D constant coefficients: the passage drift comes with the fields (one pass)
+    fused = constant and grid.dims == 2 and D_source is not None
     if _walls.renormalises(grid, walls):
         # free-volume-conserving walls: sources divided by phi (u_p) and phi^2 (D_p)
         phi = _walls.coverage(grid, kernel, mask)
         if constant and mask is None:   # phi < 1 by the walls only
             fields = _walls.renormalised_constant_fields(grid, rho_s, float(v_s), D_s, lam,
-                                                         conv, phi, D_source)
+                                                         conv, phi, D_source, fused)
         else:
+            fused = False
             fields = _walls.renormalised_fields(grid, rho_s, v_s, D_s, lam, conv, phi, D_source)
         G = fields.pop("_G")
         fields.pop("_phi")
     elif constant:
-        fields = constant_fields(grid, rho_s, float(v_s), D_s, lam, conv, D_source)
+        fields = constant_fields(grid, rho_s, float(v_s), D_s, lam, conv, D_source, fused)
         G = SpotFluxTensor(rho_s, D_s)
     else:
         fields = _general_fields(grid, rho_s, v_s, D_s, lam, conv, D_source)
         G = fields.pop("_G")
-    if D_source is not None:
+    if D_source is not None and not fused:
         _passage.keep_flux_velocity(grid, rho_s, D_s, D_source, kernel, fields, phi)
 
     # wall layer of the reflecting side walls: (1 - 2 lam) int (D_s rho_s)^ab n_b w dA
     add_wall_layer(grid, kernel, lam, G, phi, fields)
     # D_p = w^2 * (rho_s D_s) has a non-negative diagonal; the FFT leaves round-off
     # negatives (~1e-17 of the peak) where it vanishes, which the tracer would reject
-    for a in comps:
-        fields[f"D_{a}{a}"] = clip_roundoff(fields[f"D_{a}{a}"])
+    for a in comps:   # the arrays are this call's own: clipped in place
+        fields[f"D_{a}{a}"] = clip_roundoff(fields[f"D_{a}{a}"], inplace=True)
     order = DRIFT_KEYS[grid.dims] + DIFFUSIVITY_KEYS[grid.dims]
     return {k: fields[k] for k in order}
 

@@ -30,6 +30,7 @@ e.g. Press et al., Numerical Recipes, 3rd ed., sec. 13.1 (zero padding against w
 
 from __future__ import annotations
 
+import contextlib
 import threading
 from collections import OrderedDict
 from typing import Sequence
@@ -39,7 +40,7 @@ import scipy.fft
 
 from . import _fft
 
-__all__ = ["convolve", "Convolver", "MODES", "BACKENDS", "fft_shape"]
+__all__ = ["convolve", "convolve_padded", "Convolver", "MODES", "BACKENDS", "fft_shape"]
 
 MODES = ("linear", "periodic")
 BACKENDS = _fft.BACKENDS
@@ -181,6 +182,63 @@ class Convolver:
             np.multiply(plan.spectrum, self._spectrum, out=plan.spectrum)
             plan.inverse.execute()
             return plan.real_out[self._region].copy()
+
+
+    @contextlib.contextmanager
+    def padded(self, f: np.ndarray, pad: int = 1, prepare=None):
+        """The convolution of ``f`` zero-padded by ``pad`` cells per side, lent for a ``with`` block.
+
+        The same sums as ``self(np.pad(f, pad))`` (the convolver's shape is the padded
+        one), without forming the padded array or copying the result: pyfftw writes ``f``
+        into the plan's input buffer at offset ``pad`` (its zero border survives between
+        calls of this shape) and yields a view of the output buffer. The view is valid
+        inside the block only, and the plan is locked meanwhile: do not convolve with a
+        plan of the same transform shape inside it. ``prepare(view)``, if given, may
+        change the copy of ``f`` in place before the transform (e.g. scale a few columns).
+        """
+        f = np.asarray(f)
+        if np.iscomplexobj(f):
+            raise ValueError("fields must be real, got a complex array")
+        if tuple(n + 2 * pad for n in f.shape) != self.shape:
+            raise ValueError(f"field of shape {f.shape} padded by {pad} does not match the "
+                             f"convolver shape {self.shape}")
+        inner = tuple(slice(pad, pad + n) for n in f.shape)
+        if self.backend == "scipy":
+            padded = np.pad(f, pad)
+            if prepare is not None:
+                prepare(padded[inner])
+            yield self._one(padded)
+            return
+        plan = _fft.get_plan(self.fft_shape)
+        with plan.lock:
+            if plan.filled != ("padded", self.shape, pad):
+                plan.real_in[...] = 0.0
+            plan.real_in[inner] = f
+            if prepare is not None:
+                prepare(plan.real_in[inner])
+            plan.filled = ("padded", self.shape, pad)
+            plan.forward.execute()
+            np.multiply(plan.spectrum, self._spectrum, out=plan.spectrum)
+            plan.inverse.execute()
+            yield plan.real_out[self._region]
+
+
+def convolve_padded(f, stencil, pad: int = 1, backend: str | None = None, prepare=None):
+    """``convolve(np.pad(f, pad), stencil, mode="linear")``, lent for a ``with`` block.
+
+    See :meth:`Convolver.padded`: the result is a view of the transform's output buffer,
+    valid (and the plan locked) inside the block only; ``prepare`` changes the copy of
+    ``f`` in place before the transform.
+    """
+    s = np.asarray(stencil)
+    if np.iscomplexobj(s) or s.dtype != np.float64 or not s.flags.c_contiguous:
+        s = _check_stencil(s)
+    backend = _fft.resolve_backend(backend)
+    shape = tuple(int(n) + 2 * pad for n in np.shape(f))
+    if len(shape) != s.ndim:
+        raise ValueError(f"field of shape {np.shape(f)} and stencil of shape {s.shape} differ "
+                         f"in dimensions")
+    return _get_convolver(s, shape, "linear", backend).padded(f, pad, prepare)
 
 
 def _aligned_copy(a: np.ndarray) -> np.ndarray:
