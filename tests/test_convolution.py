@@ -268,6 +268,22 @@ def test_thread_count(monkeypatch):
     assert _fft.threads() >= 1
 
 
+def test_results_do_not_depend_on_the_thread_count(monkeypatch):
+    """The thread count follows the load (threads()), so a run must give the same numbers
+    whatever it gets: the FFTW transforms, with one thread or two, bit for bit."""
+    if _fft.resolve_backend(None) != "pyfftw":
+        pytest.skip("pyfftw not installed")
+    rng = np.random.default_rng(5)
+    f = rng.random((520, 500))                    # above THREAD_MIN_SIZE once padded
+    st = rng.random((21, 21))
+    out = []
+    for n in ("1", "2"):
+        monkeypatch.setenv("SPOTPDE_FFT_THREADS", n)
+        assert _fft.plan_threads((540, 520)) == int(n)
+        out.append(convolve(f, st, backend="pyfftw"))
+    assert np.array_equal(out[0], out[1])
+
+
 @pytest.mark.parametrize("kwargs, match", [
     (dict(mode="wrap"), "mode must be one of"),
     (dict(backend="fftpack"), "backend must be one of"),
