@@ -67,3 +67,39 @@ def test_serial_and_parallel_kernels_agree_to_round_off(name, nz, nx, cross):
                 np.testing.assert_allclose(p, s, rtol=0, atol=1e-13 * scale)
     finally:
         numba.set_num_threads(saved)
+
+
+@pytest.mark.slow
+def test_the_warmup_child_compiles_the_kernel_the_run_loads(tmp_path):
+    """``spotpde run`` compiles its tracer kernel in a child process
+    (``spotpde.app._warmup``) while it computes the fields: the child's tiny solve must
+    compile the very variant (argument types) a case run calls, so that the run finds it
+    in numba's cache: no compilation in the run (cache hit, no miss)."""
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, SPOTPDE_CACHE_DIR=str(tmp_path), PYTHONPATH=os.getcwd())
+    env.pop("NUMBA_CACHE_DIR", None)
+    probe = ("import spotpde; from spotpde.app import _warmup; print(_warmup.needed())")
+    check = lambda: subprocess.run([sys.executable, "-c", probe], env=env, text=True,
+                                   capture_output=True, check=True).stdout.strip()
+    assert check() == "True"                            # a fresh cache: a child is due
+    subprocess.run([sys.executable, "-m", "spotpde.app._warmup", "weno5", "1"], env=env,
+                   check=True, timeout=300)
+    assert check() == "False"                           # the kernel's index is written
+    run = """
+import spotpde
+from spotpde.tracer import _fp_kernels as K
+case = spotpde.load_case({"domain": {"x": [-2.0, 2.0], "z": [0.0, 4.0], "spacing": 0.25},
+                          "orifice": {"width": 1.0},
+                          "tracer": {"start": {"x": 0.0, "z": 3.0, "width": 0.5},
+                                     "t_end": 1.0, "frames": 2}})
+spotpde.run(case)
+stats = K._rhs_2d_variant(6, False).stats
+print(sum(stats.cache_hits.values()), sum(stats.cache_misses.values()))
+"""
+    out = subprocess.run([sys.executable, "-c", run], env=env, text=True, capture_output=True,
+                         check=True, timeout=300).stdout.split()
+    hits, misses = int(out[-2]), int(out[-1])
+    assert hits >= 1 and misses == 0

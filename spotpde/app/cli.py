@@ -143,6 +143,20 @@ def _run_libraries(case) -> None:
             importlib.import_module(name)
 
 
+def _warmup(case):
+    """Start compiling the run's tracer kernel in a child process (:mod:`._warmup`) when
+    the run will step a 2D tracer and numba's cache has never held that kernel."""
+    from . import _warmup as warmup
+
+    t = case.tracer
+    if t is None or t.t_end == float("inf") or case.grid.dims != 2 or \
+            case.tracer_options.get("stepping") == "implicit" or not warmup.needed():
+        return None
+    cores = int(os.environ.get("NUMBA_NUM_THREADS", os.cpu_count() or 1))
+    threads = 1 if case.grid.size < 65536 else cores     # as tracer.solve chooses
+    return warmup.Warmup(case.tracer_options.get("limiter", "weno5"), threads)
+
+
 def cmd_run(args) -> int:
     """``spotpde run CASE.toml [-o OUT.nc] [--plot [FIG.png]]``: run, stream to the file.
 
@@ -169,6 +183,7 @@ def cmd_run(args) -> int:
                        inputs=[args.case])
     progress = None if args.quiet else Progress()
     t0 = time.monotonic()
+    warm = _warmup(case) if args.command_line else None
     try:
         if progress is not None:
             progress("spot density", 0.0)
@@ -180,9 +195,13 @@ def cmd_run(args) -> int:
             if progress is not None:
                 progress.close()        # a bar is finished before the estimate's line
             _estimate(case, args.allow_long, args.quiet, fields=fields)
+            if warm is not None:
+                warm.wait()             # the tracer kernel is in numba's cache now
 
         ds = run(case, progress=progress, path=out, on_fields=on_fields)
     finally:
+        if warm is not None:
+            warm.stop()
         if progress is not None:
             progress.close()
     args.written = out
@@ -400,6 +419,35 @@ def main(argv: list[str] | None = None) -> int:
         return int(exc.code or 0)
     args.command_line = argv is None   # the process is this command (may os._exit)
     handle_termination()          # SIGTERM and SIGHUP: like Ctrl-C
+    status = _dispatch(args)
+    if args.command_line and args.command in QUICK_EXIT:
+        _quick_exit(status)
+    return status
+
+
+#: commands whose process ends without the interpreter's teardown once they are done
+QUICK_EXIT = ("run", "check")
+
+
+def _quick_exit(status: int) -> None:
+    """End the process at once with ``status``, its output flushed.
+
+    Everything the command writes is closed by then (the netCDF result is renamed into
+    place, the figure saved, numba's cache and FFTW's wisdom are written when made). What
+    ``os._exit`` skips is the interpreter's teardown of the scientific libraries' modules
+    and extension state, which took about 1 s after a flagship run (0.2-0.3 s each for
+    numba, pyfftw, dask, matplotlib; C code, no Python frames), a part of the first run's
+    time (issue 16: under 15 s)."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(status)
+
+
+def _dispatch(args) -> int:
+    """Run the chosen command; errors become one line and an exit status."""
     import warnings
 
     warnings.showwarning = _warning

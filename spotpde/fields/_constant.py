@@ -20,7 +20,7 @@ from collections.abc import Mapping
 
 import numpy as np
 import scipy.signal
-from numba import njit, prange
+from numba import njit
 
 from ..grid import Grid
 
@@ -215,7 +215,7 @@ def constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, lam
 
 # -- 2D: every field in one pass over the transform --------------------------------------
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)
 def _fields_2d_cell(c, cD, i, j, h, a0, gxx, gxz, gzx, gzz, px, pz, axx, azz,
                     ux, uz, dxx, dzz):
     """One cell of :func:`_fields_2d_kernel`, any position (one-sided differences of
@@ -272,18 +272,24 @@ def _fields_2d_kernel(c, cD, h, a0, gxx, gxz, gzx, gzz, px, pz, axx, azz, ux, uz
                     same, 0, ux.shape[0])
 
 
-@njit(parallel=True, cache=True, error_model="numpy")
 def _fields_2d_kernel_parallel(c, cD, h, a0, gxx, gxz, gzx, gzz, px, pz, axx, azz, ux, uz,
                                dxx, dzz, same, chunks):
-    """:func:`_fields_2d_kernel` with its rows split into ``chunks`` blocks run in parallel
-    (the same operations cell by cell: the same values)."""
+    """:func:`_fields_2d_kernel` with its rows split into ``chunks`` blocks run on as many
+    Python threads (:func:`_fields_2d_rows` releases the GIL): the same operations cell by
+    cell, the same values. Threads rather than ``numba.prange``: a parallel numba kernel
+    took 4-5 s to compile, paid by the first run after installation (issue 16: under
+    15 s in all)."""
+    from concurrent.futures import ThreadPoolExecutor
+
     nz = ux.shape[0]
-    for t in prange(chunks):
-        _fields_2d_rows(c, cD, h, a0, gxx, gxz, gzx, gzz, px, pz, axx, azz, ux, uz, dxx, dzz,
-                        same, t * nz // chunks, (t + 1) * nz // chunks)
+    args = (c, cD, h, a0, gxx, gxz, gzx, gzz, px, pz, axx, azz, ux, uz, dxx, dzz, same)
+    bounds = [(t * nz // chunks, (t + 1) * nz // chunks) for t in range(chunks)]
+    with ThreadPoolExecutor(chunks) as pool:
+        for f in [pool.submit(_fields_2d_rows, *args, i0, i1) for i0, i1 in bounds]:
+            f.result()
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)
 def _fields_2d_rows(c, cD, h, a0, gxx, gxz, gzx, gzz, px, pz, axx, azz, ux, uz, dxx, dzz,
                     same, i0, i1):
     """Rows ``i0 <= i < i1`` of :func:`_fields_2d_kernel`."""
