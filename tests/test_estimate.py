@@ -107,3 +107,52 @@ def test_multirate_and_auto_estimates_are_the_solvers(monkeypatch):
         assert est["steps"] * est["split"] <= explicit["steps"] + 2 * est["split"]
     with pytest.raises(ValueError, match="^stepping"):
         estimate.tracer_steps(grid, fields, 20.0, 3, stepping="imex")
+
+
+def test_choose_stepping_keeps_short_transient_and_even_runs_explicit():
+    """auto: explicit for short runs, for time-dependent fields and for even rates;
+    multirate only for a long steady run with a few fast cells (the split then at most
+    their ratio); explicit modes and default splits pass through."""
+    from spotpde.tracer import _advection, _implicit
+    from spotpde.tracer._solve import AUTO_IMEX_STEPS, DEFAULT_SPLIT, choose_stepping
+    from test_implicit_tracer import _void
+    grid, fields, _ = _void(0.25)
+    faces = _advection.face_velocities(fields, grid.walls, np.ones(grid.shape[1:], bool))
+    ratio = _implicit.auto_split(faces, grid.spacing)
+    assert ratio > _implicit.MIN_SPLIT
+    long = AUTO_IMEX_STEPS + 1
+    assert choose_stepping("auto", None, faces, grid.spacing, AUTO_IMEX_STEPS) == \
+        ("explicit", 1.0)
+    assert choose_stepping("auto", None, faces, grid.spacing, long, steady=False)[0] == \
+        "explicit"
+    assert choose_stepping("auto", None, faces, grid.spacing, long) == \
+        ("multirate", min(DEFAULT_SPLIT["multirate"], ratio))
+    even = {k: np.where(v != 0, 1.0, 0.0) for k, v in faces.items()}
+    assert choose_stepping("auto", None, even, grid.spacing, long)[0] == "explicit"
+    assert choose_stepping("multirate", None, faces, grid.spacing, 1) == \
+        ("multirate", DEFAULT_SPLIT["multirate"])
+    assert choose_stepping("imex", 3.0, faces, grid.spacing, 1) == ("imex", 3.0)
+
+
+def test_axisymmetric_runs_are_estimated_explicit():
+    """tracer.solve steps axisymmetric (and hopper) grids explicitly whatever the
+    stepping; the estimate must not price them as multirate."""
+    from spotpde.tracer import _solve
+    grid = Grid(2, (0.0, 4.0), (0.0, 8.0), 0.25, coordinates="axisymmetric")
+    from spotpde.tracer import _geometry, _implicit
+    Z, R = grid.mesh()
+    zero = 0 * R + 0 * Z
+    r = np.hypot(R, Z)
+    speed = 1.0 / (0.005 + r**2)                   # a point sink at the axis: fast cells
+    fields = {"u_r": -speed * R / r + zero, "u_z": -speed * Z / r + zero,
+              "D_rr": 0.01 + zero, "D_rz": zero, "D_zz": zero}
+    for stepping in ("auto", "multirate"):
+        est = estimate.tracer_steps(grid, fields, 1e6, 3, stepping=stepping)
+        assert est["stepping"] == "explicit"
+    # on a Cartesian box the same rates would make auto switch: long, uneven
+    assert _solve.AUTO_IMEX_STEPS < est["steps"]
+    op = _geometry.operator(grid, _solve._check_fields(grid, fields, "fields"), 6,
+                            np.ones(grid.shape[1:], bool), implicit=False)
+    assert _solve.choose_stepping("auto", None, op.faces, grid.spacing,
+                                  est["steps"])[0] == "multirate"
+    assert _implicit.auto_split(op.faces, grid.spacing) > _implicit.MIN_SPLIT

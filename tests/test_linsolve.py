@@ -16,6 +16,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from spotpde.tracer import _advection, _diffusion, _implicit, _linsolve
+from spotpde.tracer._extrapolation import Extrapolation
 from test_implicit_tracer import _void
 
 
@@ -41,7 +42,7 @@ def test_void_diffusion_takes_the_tridiagonal_path_and_equals_superlu():
         assert f.solve(P0.ravel()).min() >= -1e-15 * P0.max()
 
 
-def test_matrices_that_are_not_tridiagonal_use_superlu():
+def test_matrices_that_are_not_tridiagonal_use_superlu(monkeypatch):
     _, _, _, L = _void_diffusion(0.5)
     n = L.shape[0]
     nx = int(round(16.0 / 0.5))
@@ -52,17 +53,16 @@ def test_matrices_that_are_not_tridiagonal_use_superlu():
     b = np.random.default_rng(0).random(n)
     assert np.abs(M @ f.solve(b) - b).max() < 1e-12
     # switched off, a tridiagonal matrix also goes to SuperLU
-    _linsolve.TRIDIAGONAL = False
-    try:
-        assert not isinstance(_linsolve.factorize(sp.identity(n) - L), _linsolve._Tridiagonal)
-    finally:
-        _linsolve.TRIDIAGONAL = True
+    monkeypatch.setattr(_linsolve, "TRIDIAGONAL", False)
+    assert not isinstance(_linsolve.factorize(sp.identity(n) - L), _linsolve._Tridiagonal)
 
 
 def _numpy_extrapolation(A, Pa, P1, Pb, tau, eps):
-    """The limited extrapolation as it was written before the kernel (whole arrays)."""
+    """The limited extrapolation as it was written before the kernels (whole arrays):
+    the limiter counts the non-negative off-diagonals, the update applies ``A``."""
     diag = A.diagonal()
     off = (A - sp.diags(diag)).tocsc()
+    off.data[off.data < 0] = 0.0
     off.eliminate_zeros()
     off.sort_indices()
     Sb = 0.5 * tau * (P1 + Pb)
@@ -79,6 +79,59 @@ def _numpy_extrapolation(A, Pa, P1, Pb, tau, eps):
     theta[take] = np.minimum(theta[take], col_min[take])
     corr = theta * delta
     return Pb + A @ corr, Sb + corr, theta.min()
+
+
+def _diffusion_operator(nz, nx, kind, rng):
+    """A random diffusion operator on an ``nz x nx`` grid (h = 0.5): ``"void"`` D_xx only
+    (tridiagonal), ``"tensor"`` D_xx, D_zz and D_xz (9-point), ``"not dominant"`` the
+    same with |D_xz| > D_xx in some cells (negative off-diagonals); the top two rows have
+    no diffusion (empty trailing columns of the matrix)."""
+    Dxx = rng.uniform(0.2, 1.0, (nz, nx))
+    Dzz = np.zeros((nz, nx)) if kind == "void" else rng.uniform(0.2, 1.0, (nz, nx))
+    Dxz = np.zeros((nz, nx)) if kind == "void" else 0.15 * rng.uniform(-1, 1, (nz, nx))
+    if kind == "not dominant":
+        Dxz[2:5, 3:6] = 1.5
+    for D in (Dxx, Dzz, Dxz):
+        D[-2:] = 0.0
+    terms, n_bad = _diffusion.split_tensor({"D_xx": Dxx, "D_zz": Dzz, "D_xz": Dxz}, 2)
+    assert (n_bad > 0) == (kind == "not dominant")
+    return _diffusion.operator(terms, (nz, nx), 0.5).tocsc()
+
+
+@pytest.mark.parametrize("kind", ["void", "tensor", "not dominant"])
+def test_both_kernels_equal_the_numpy_computation_and_conserve(kind):
+    """Both kernels (rows for the tridiagonal operator, diagonal storage otherwise),
+    including operators whose last rows exchange nothing and one with negative
+    off-diagonals: the numbers of the whole-array computation, and ``P_new - p = A (S_new
+    - S)`` to round-off (conservation holds even where positivity is not guaranteed)."""
+    rng = np.random.default_rng(11)
+    nz, nx = 12, 9
+    A = _diffusion_operator(nz, nx, kind, rng)
+    ex = Extrapolation(A, nx)
+    assert (ex.nx is not None) == (kind == "void")
+    I = sp.identity(nz * nx, format="csc")
+    p = np.zeros(nz * nx)
+    p[rng.integers(0, nz * nx, 6)] = rng.uniform(0.5, 1.0, 6)   # spikes: the limiter acts
+    for tau in (0.05, 3.0):
+        lu, lu_half = (_linsolve.factorize((I - t * A).tocsc()) for t in (tau, 0.5 * tau))
+        S = np.zeros_like(p)
+        P, theta = ex(lu, lu_half, p, tau, 1e-15, S)
+        Pa, P1 = lu.solve(p), lu_half.solve(p)
+        ref_P, ref_S, ref_theta = _numpy_extrapolation(A, Pa, P1, lu_half.solve(P1), tau,
+                                                       1e-15)
+        np.testing.assert_allclose(P, ref_P, rtol=0, atol=1e-13)
+        np.testing.assert_allclose(S, ref_S, rtol=0, atol=1e-13 * tau)
+        assert theta == pytest.approx(ref_theta, rel=1e-12)
+        np.testing.assert_allclose(P - p, A @ S, rtol=0, atol=1e-13)
+        if kind != "not dominant":
+            assert P.min() >= -1e-15 * (1 + 1e-9)
+    assert theta < 1.0                                  # the limiter acted at tau = 3
+
+
+def test_a_zero_pivot_is_an_error_naming_the_matrix():
+    M = sp.csc_matrix(np.array([[0.0, 1.0], [1.0, 1.0]]))
+    with pytest.raises(np.linalg.LinAlgError, match="^M: the tridiagonal"):
+        _linsolve._Tridiagonal(M)
 
 
 @pytest.mark.parametrize("advect", [False, True])

@@ -96,7 +96,8 @@ case = spotpde.load_case({"domain": {"x": [-2.0, 2.0], "z": [0.0, 4.0], "spacing
                           "tracer": {"start": {"x": 0.0, "z": 3.0, "width": 0.5},
                                      "t_end": 1.0, "frames": 2}})
 spotpde.run(case)
-stats = K._rhs_2d_variant(6, False).stats
+from spotpde.tracer._advection import limiter_from_name
+stats = K._rhs_2d_variant(limiter_from_name("weno5").code, False).stats
 print(sum(stats.cache_hits.values()), sum(stats.cache_misses.values()))
 """
     out = subprocess.run([sys.executable, "-c", run], env=env, text=True, capture_output=True,

@@ -4,13 +4,16 @@ density and fields (private; user: :mod:`spotpde.app.cli`).
 The first run after installation compiles the 2D tracer kernel of its reconstruction
 (numba, 5-7 s CPU here, mostly numba's Python front end, which holds the GIL: a thread
 cannot overlap it). ``spotpde run`` therefore starts this module as a child process,
-``python -m spotpde.app._warmup LIMITER THREADS``, at a lower priority, as soon as the
-case is valid. The child steps a tracer on an 8 x 8 grid once with the run's
+``python -m spotpde.app._warmup LIMITER THREADS``, as soon as the case is valid (at the
+run's own priority: the run waits for it, so a lower one would only slow the run down
+on a busy machine). The child steps a tracer on an 8 x 8 grid once with the run's
 reconstruction and numba thread count, which compiles the kernel variant the run will
 call with the same argument types, and numba writes it to its disk cache (an atomic
 rename). The run waits for the child (:func:`Warmup.wait`) before its tracer stage and
 then loads the kernel from the cache. On a machine with a free core the compilation
-overlaps the imports, spot density and fields of the run (measured in docs/tracer.md).
+overlaps the imports, spot density and fields of the run (measured in docs/steady.md,
+"The first run after installation"); with no free core it takes as long as compiling
+in the run, plus the child's imports.
 No child is started once numba's cache holds an index of the tracer kernel
 (:func:`needed`, a file test): the first run of another reconstruction then compiles in
 the run, as without this module. If the child fails or is killed, the run compiles the
@@ -46,8 +49,15 @@ class Warmup:
             self.stop()
 
     def stop(self) -> None:
-        """Kill the child if it still runs (on an error or a signal in the run)."""
-        if self.proc is not None and self.proc.poll() is None:
+        """Stop the child if it still runs (on an error or a signal in the run): SIGTERM,
+        which lets numba finish or drop a cache file it is writing, then SIGKILL after
+        2 s."""
+        if self.proc is None or self.proc.poll() is not None:
+            return
+        self.proc.terminate()
+        try:
+            self.proc.wait(2.0)
+        except subprocess.TimeoutExpired:
             self.proc.kill()
             self.proc.wait()
 
@@ -79,8 +89,4 @@ def _main(limiter: str, threads: int) -> None:
 
 
 if __name__ == "__main__":
-    try:
-        os.nice(10)                 # the run itself comes first
-    except OSError:
-        pass
     _main(sys.argv[1], int(sys.argv[2]))

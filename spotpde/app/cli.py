@@ -152,7 +152,11 @@ def _warmup(case):
     if t is None or t.t_end == float("inf") or case.grid.dims != 2 or \
             case.tracer_options.get("stepping") == "implicit" or not warmup.needed():
         return None
-    cores = int(os.environ.get("NUMBA_NUM_THREADS", os.cpu_count() or 1))
+    try:                        # numba's default thread count: the cores this process may use
+        cores = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # pragma: no cover - non-Linux
+        cores = os.cpu_count() or 1
+    cores = int(os.environ.get("NUMBA_NUM_THREADS", cores))
     threads = 1 if case.grid.size < 65536 else cores     # as tracer.solve chooses
     return warmup.Warmup(case.tracer_options.get("limiter", "weno5"), threads)
 

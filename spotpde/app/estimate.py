@@ -21,8 +21,9 @@ benchmarks/steady.py):
 ``tracer.stepping = "multirate"`` (and ``"auto"`` where the solver picks it,
 :func:`spotpde.tracer._solve.choose_stepping`) steps the grid at the limit of the cells
 outside the fast box, ``dt = cfl / max_slow a``, so its steps are known the same way;
-a step costs the SSP-RK3 step of the grid, three solves and the limiter of the implicit
-diffusion (1.5 times the two solves above) and the box's sub-steps.
+a step costs the SSP-RK3 step of the grid, its implicit diffusion (three solves and the
+limiter, measured as costly as the explicit scheme's two solves: the same rate) and the
+box's sub-steps. Axisymmetric and hopper grids always step explicitly.
 
 A run estimated at more than :data:`MAX_SECONDS` (a day) is refused unless asked for
 (``spotpde run --allow-long``); ``tracer.t_end = inf`` needs no estimate (one solve).
@@ -61,13 +62,14 @@ def tracer_steps(grid, fields, t_end: float, frames: int, *, limiter: str = "wen
 
     Returns:
         dict: ``steps``, ``dt`` (time units), ``seconds`` (estimated wall time),
-        ``implicit`` (bool), ``rate`` (``max a``, 1/time), ``cells``, ``stepping``
+        ``implicit`` (bool), ``rate`` (1/time: ``max a`` over the cells, or over the
+        cells outside the fast box for multirate), ``cells``, ``stepping``
         (``"explicit"`` or ``"multirate"``), ``split``.
 
     Raises:
         ValueError: ``t_end``, ``frames``, ``cfl`` or ``stepping`` out of range.
     """
-    from ..tracer import _advection
+    from ..tracer import _advection, _geometry
     from ..tracer._geometry import operator
     from ..tracer._solve import _check_fields, choose_stepping
     if stepping not in ("explicit", "multirate", "auto"):
@@ -97,7 +99,9 @@ def tracer_steps(grid, fields, t_end: float, frames: int, *, limiter: str = "wen
     per_step = cells / step_rate
     if implicit:
         per_step += cells / IMPLICIT_RATE
-    mode, split = choose_stepping(stepping, split, op.faces, grid.spacing, steps)
+    # axisymmetric and hopper grids always step explicitly (tracer.solve)
+    mode, split = ("explicit", split) if _geometry.special(grid) else \
+        choose_stepping(stepping, split, op.faces, grid.spacing, steps)
     if mode == "multirate" and math.isfinite(per):
         from ..tracer._implicit import split_faces
         from ..tracer._multirate import HALO
@@ -112,9 +116,9 @@ def tracer_steps(grid, fields, t_end: float, frames: int, *, limiter: str = "wen
             box = math.prod(min(n, int(i.max()) + 1 + HALO) - max(0, int(i.min()) - HALO)
                             for i, n in zip(idx, fast.shape))
             sub = 2 * math.ceil(0.5 * interval / n_sub * float(a.max()) / cfl)
-            # the grid's step, its diffusion (three solves and the limiter instead of
-            # two solves), the box's sub-steps
-            per_step = cells / step_rate + 1.5 * cells / IMPLICIT_RATE + sub * box / step_rate
+            # the grid's step and its implicit diffusion (measured as costly as the
+            # explicit step's: docs/long_runs.md), the box's sub-steps
+            per_step = cells / step_rate + cells / IMPLICIT_RATE + sub * box / step_rate
             implicit = True
         else:
             mode = "explicit"

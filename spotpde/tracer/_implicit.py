@@ -110,8 +110,9 @@ def build_operator(grid, f, faces, scheme="hybrid"):
 
 
 class _Factors:
-    """SuperLU factors of ``I - tau A``, one per ``tau``; the last ``KEEP`` are kept (the
-    step sizes move along a short ladder; each factor of the void case is ~30 MB)."""
+    """Factors of ``I - tau A`` (:func:`._linsolve.factorize`: Thomas when tridiagonal,
+    else SuperLU), one per ``tau``; the last ``KEEP`` are kept (the step sizes move along
+    a short ladder; a SuperLU factor of the void case is ~30 MB)."""
 
     KEEP = 4
 

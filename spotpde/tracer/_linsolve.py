@@ -13,8 +13,9 @@ many times for one ``tau``, so it is factorised once. Two cases:
   times the outflow rates): the multipliers are at most 1 in magnitude and every
   reduced matrix stays column diagonally dominant (Golub & Van Loan, Theorem 3.4.3).
   SuperLU pays per supernode on such a matrix: for the 89,600 cells of the void
-  propagator a solve takes 0.7 ms here against 3.1 ms (``benchmarks/long_runs.py``
-  times both). The solution is SuperLU's to round-off (``tests/test_linsolve.py``).
+  propagator a solve took 0.7 ms here against 3.1 ms (timed in one process;
+  ``benchmarks/long_runs.py`` times the runs with and without it). The solution is
+  SuperLU's to round-off (``tests/test_linsolve.py``).
 * anything else: SuperLU (``scipy.sparse.linalg.splu``) with the given column ordering.
 """
 
@@ -26,10 +27,11 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _thomas_factor(dl, d, du):
     """``M = L U``, ``L`` unit lower bidiagonal with multipliers ``m``, ``U`` upper
-    bidiagonal with diagonal ``1 / inv`` and superdiagonal ``du``."""
+    bidiagonal with diagonal ``1 / inv`` and superdiagonal ``du`` (a zero pivot gives an
+    infinite ``inv``: numpy's error model)."""
     n = d.size
     m = np.zeros(n)
     inv = np.empty(n)
@@ -44,6 +46,7 @@ def _thomas_factor(dl, d, du):
 
 @numba.njit(cache=True)
 def _thomas_solve(m, inv, du, b):
+    """``x`` with ``L U x = b``: forward then backward substitution."""
     n = b.size
     x = np.empty(n)
     x[0] = b[0]
@@ -69,7 +72,8 @@ class _Tridiagonal:
         self.du = np.ascontiguousarray(band.get(1, zero)[1:])
         self.m, self.inv = _thomas_factor(dl, d, self.du)
         if not np.all(np.isfinite(self.inv)):
-            raise np.linalg.LinAlgError("tridiagonal factorisation met a zero pivot")
+            raise np.linalg.LinAlgError("M: the tridiagonal factorisation met a zero pivot "
+                                        "(the matrix is singular or needs pivoting)")
 
     def solve(self, rhs):
         return _thomas_solve(self.m, self.inv, self.du,
@@ -77,6 +81,7 @@ class _Tridiagonal:
 
 
 def _is_tridiagonal(M) -> bool:
+    """Whether every entry of ``M`` lies on the three central diagonals."""
     coo = M.tocoo()
     return coo.nnz == 0 or int(np.abs(coo.row.astype(np.int64) - coo.col).max()) <= 1
 
