@@ -14,9 +14,9 @@ then loads the kernel from the cache. On a machine with a free core the compilat
 overlaps the imports, spot density and fields of the run (measured in docs/steady.md,
 "The first run after installation"); with no free core it takes as long as compiling
 in the run, plus the child's imports.
-No child is started once numba's cache holds an index of the tracer kernel
-(:func:`needed`, a file test): the first run of another reconstruction then compiles in
-the run, as without this module. If the child fails or is killed, the run compiles the
+No child is started once numba's cache holds a fresh index of this install's tracer
+kernel (:func:`needed`, a file test): the first run of another reconstruction then
+compiles in the run, as without this module. If the child fails or is killed, the run compiles the
 kernel itself: the child writes nothing but numba's cache.
 """
 
@@ -63,14 +63,27 @@ class Warmup:
 
 
 def needed() -> bool:
-    """Whether the tracer kernel has never been cached here: no numba index file of it
-    in spotpde's numba cache directory (:mod:`spotpde._cache`)."""
+    """Whether this install's tracer kernel has no fresh numba cache yet: no index file of
+    it in the cache subdirectory numba uses for this source directory (numba names it
+    ``tracer_<sha1 of the directory>``), or only indexes older than the source file (an
+    upgrade: numba would recompile). A file test, no import of numba."""
+    import hashlib
+    from pathlib import Path
+
     from .. import _cache
 
     root = _cache.NUMBA_DIR
     if root is None:                # no writable cache: a child's work would be lost
         return False
-    return next(root.glob("*/_fp_kernels._rhs_2d_variant.*rhs_2d-*.nbi"), None) is None
+    # numba hashes os.path.abspath of the source directory (symbolic links kept)
+    source = Path(os.path.abspath(__file__)).parent.parent / "tracer" / "_fp_kernels.py"
+    sub = root / ("tracer_" + hashlib.sha1(str(source.parent).encode()).hexdigest())
+    try:
+        changed = source.stat().st_mtime
+        return not any(index.stat().st_mtime >= changed for index in
+                       sub.glob("_fp_kernels._rhs_2d_variant.*rhs_2d-*.nbi"))
+    except OSError:
+        return True
 
 
 def _main(limiter: str, threads: int) -> None:

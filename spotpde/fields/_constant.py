@@ -158,8 +158,10 @@ def constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, lam
 
     if grid.dims == 2:
         return fields_2d(grid, rho_s, v_s, D_s, lam, conv, D_source, passage_drift, strips)
-    if passage_drift or strips is not None:
-        raise ValueError("passage_drift: the fused passage drift and strips need a 2D grid")
+    if passage_drift:
+        raise ValueError("passage_drift: the fused passage drift needs a 2D grid")
+    if strips is not None:
+        raise ValueError("strips: the wall strips of the one-pass fields need a 2D grid")
 
     comps = _COMPONENTS[grid.dims]
     h = grid.spacing
