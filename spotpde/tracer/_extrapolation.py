@@ -30,8 +30,8 @@ Two kernels compute the same numbers to round-off:
   (:mod:`._linsolve`). It does the three solves and the extrapolation row by row, rows
   in parallel, each row's work in the first-level cache: ``I(tau)`` in about 2 ms
   instead of 4.4 ms for the 89,600 cells of the void propagator (two threads). Values of
-  its solves below ``tiny`` are set to 0 (:func:`_thomas_row`), which changes ``P`` and
-  ``S`` by at most that much.
+  its solves below ``tiny`` are set to 0 (:func:`._linsolve.thomas_rows`), which
+  changes ``P`` and ``S`` by at most that much.
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ import numba
 import numpy as np
 import scipy.sparse as sp
 
-from ._linsolve import _Tridiagonal
+from ._linsolve import _Tridiagonal, thomas_rows, thomas_rows_pair
 
 
 class Extrapolation:
@@ -142,47 +142,6 @@ def _extrapolate(offsets, data, diag, Pa, P1, Pb, tau, eps, S):
     return out, tmin
 
 
-@numba.njit(cache=True)
-def _flush(v, tiny):
-    """``v``, or 0 when ``|v| < tiny``."""
-    return v if abs(v) >= tiny else 0.0
-
-
-@numba.njit(cache=True)
-def _thomas_row(m, inv, du, s, b, bs, x, tiny):
-    """``x[:nx]`` solves the rows ``s .. s+nx-1`` (``nx = x.size``) of the tridiagonal
-    system with the Thomas factors ``m, inv, du``
-    (:class:`spotpde.tracer._linsolve._Tridiagonal`) for the right-hand side
-    ``b[bs:bs+nx]``; the rows are not coupled to the others (``m[s] = 0``,
-    ``du[s+nx-1] = 0``). Values below ``tiny`` in magnitude are set to 0 as they arise:
-    the sweeps carry a geometrically decaying tail across the empty part of a row,
-    which would otherwise pass through the subnormal numbers (each about a hundred
-    times slower)."""
-    nx = x.size
-    x[0] = _flush(b[bs], tiny)
-    for t in range(1, nx):
-        x[t] = _flush(b[bs + t] - m[s + t] * x[t - 1], tiny)
-    x[nx - 1] *= inv[s + nx - 1]
-    for t in range(nx - 2, -1, -1):
-        x[t] = _flush((x[t] - du[s + t] * x[t + 1]) * inv[s + t], tiny)
-
-
-@numba.njit(cache=True)
-def _thomas_row2(m, inv, du, m2, inv2, du2, s, b, x, y, tiny):
-    """Two solves of the same right-hand side ``b[s:s+nx]`` in one sweep (the two
-    recurrences interleave: each waits on its own previous value only)."""
-    nx = x.size
-    x[0] = y[0] = _flush(b[s], tiny)
-    for t in range(1, nx):
-        x[t] = _flush(b[s + t] - m[s + t] * x[t - 1], tiny)
-        y[t] = _flush(b[s + t] - m2[s + t] * y[t - 1], tiny)
-    x[nx - 1] *= inv[s + nx - 1]
-    y[nx - 1] *= inv2[s + nx - 1]
-    for t in range(nx - 2, -1, -1):
-        x[t] = _flush((x[t] - du[s + t] * x[t + 1]) * inv[s + t], tiny)
-        y[t] = _flush((y[t] - du2[s + t] * y[t + 1]) * inv2[s + t], tiny)
-
-
 @numba.njit(cache=True, parallel=True)
 def _extrapolate_rows(nx, m1, inv1, du1, m2, inv2, du2, lower, upper, diag, p, tau, eps,
                       tiny, S):
@@ -193,7 +152,7 @@ def _extrapolate_rows(nx, m1, inv1, du1, m2, inv2, du2, lower, upper, diag, p, t
     ``m1, inv1, du1`` / ``m2, inv2, du2``: Thomas factors of ``I - tau A`` / ``I - tau/2
     A``; ``lower[i] = A[i, i-1]``, ``upper[i] = A[i, i+1]`` (``>= 0``, zero at the ends
     of the rows); ``diag`` the diagonal; ``tiny``: solution values below it are 0
-    (:func:`_thomas_row`). ``S`` is updated in place. Returns ``(P_new, min(theta))``.
+    (:func:`._linsolve.thomas_rows`). ``S`` is updated in place. Returns ``(P_new, min(theta))``.
     """
     n = p.size
     rows = n // nx
@@ -207,8 +166,8 @@ def _extrapolate_rows(nx, m1, inv1, du1, m2, inv2, du2, lower, upper, diag, p, t
         delta = np.empty(nx)
         R = np.empty(nx)
         c = np.empty(nx)
-        _thomas_row2(m1, inv1, du1, m2, inv2, du2, s, p, Pa, P1, tiny)
-        _thomas_row(m2, inv2, du2, s, P1, 0, Pb, tiny)
+        thomas_rows_pair(m1, inv1, du1, m2, inv2, du2, s, p, Pa, P1, tiny)
+        thomas_rows(m2, inv2, du2, s, P1, 0, Pb, tiny)
         for t in range(nx):
             i = s + t
             Sb = 0.5 * tau * (P1[t] + Pb[t])

@@ -45,17 +45,47 @@ def _thomas_factor(dl, d, du):
 
 
 @numba.njit(cache=True)
-def _thomas_solve(m, inv, du, b):
-    """``x`` with ``L U x = b``: forward then backward substitution."""
-    n = b.size
-    x = np.empty(n)
-    x[0] = b[0]
-    for i in range(1, n):
-        x[i] = b[i] - m[i] * x[i - 1]
-    x[n - 1] *= inv[n - 1]
-    for i in range(n - 2, -1, -1):
-        x[i] = (x[i] - du[i] * x[i + 1]) * inv[i]
-    return x
+def _flush(v, tiny):
+    """``v``, or 0 when ``|v| < tiny`` (NaN is kept)."""
+    return 0.0 if abs(v) < tiny else v
+
+
+@numba.njit(cache=True)
+def thomas_rows(m, inv, du, s, b, bs, x, tiny):
+    """``x[:nx]`` (``nx = x.size``) solves the rows ``s .. s+nx-1`` of ``L U x = b``
+    (forward, then backward substitution with the factors of :func:`_thomas_factor`)
+    for the right-hand side ``b[bs:bs+nx]``; these rows must not be coupled to the
+    others (``m[s] = 0``, ``du[s+nx-1] = 0``), which the whole system (``s = bs = 0``,
+    ``nx = n``) trivially is. Values below ``tiny`` in magnitude are set to 0 as they
+    arise (``tiny = 0``: none): the sweeps carry a geometrically decaying tail across
+    the empty part of a row, which would otherwise pass through the subnormal numbers
+    (each about a hundred times slower)."""
+    nx = x.size
+    x[0] = _flush(b[bs], tiny)
+    for t in range(1, nx):
+        x[t] = _flush(b[bs + t] - m[s + t] * x[t - 1], tiny)
+    x[nx - 1] *= inv[s + nx - 1]
+    for t in range(nx - 2, -1, -1):
+        x[t] = _flush((x[t] - du[s + t] * x[t + 1]) * inv[s + t], tiny)
+
+
+@numba.njit(cache=True)
+def thomas_rows_pair(m, inv, du, m2, inv2, du2, s, b, x, y, tiny):
+    """:func:`thomas_rows` of the same right-hand side ``b[s:s+nx]`` for two systems
+    (factors ``m, inv, du`` into ``x``, ``m2, inv2, du2`` into ``y``) in one sweep: the
+    two recurrences interleave, each waiting on its own previous value only, which hides
+    the latency of one behind the other (``I(tau)`` of the void propagator 2.0 against
+    2.8 ms with two separate sweeps); the same values as two calls."""
+    nx = x.size
+    x[0] = y[0] = _flush(b[s], tiny)
+    for t in range(1, nx):
+        x[t] = _flush(b[s + t] - m[s + t] * x[t - 1], tiny)
+        y[t] = _flush(b[s + t] - m2[s + t] * y[t - 1], tiny)
+    x[nx - 1] *= inv[s + nx - 1]
+    y[nx - 1] *= inv2[s + nx - 1]
+    for t in range(nx - 2, -1, -1):
+        x[t] = _flush((x[t] - du[s + t] * x[t + 1]) * inv[s + t], tiny)
+        y[t] = _flush((y[t] - du2[s + t] * y[t + 1]) * inv2[s + t], tiny)
 
 
 class _Tridiagonal:
@@ -76,8 +106,10 @@ class _Tridiagonal:
                                         "(the matrix is singular or needs pivoting)")
 
     def solve(self, rhs):
-        return _thomas_solve(self.m, self.inv, self.du,
-                             np.ascontiguousarray(rhs, dtype=float))
+        x = np.empty(self.m.size)
+        thomas_rows(self.m, self.inv, self.du, 0, np.ascontiguousarray(rhs, dtype=float),
+                    0, x, 0.0)
+        return x
 
 
 def _is_tridiagonal(M) -> bool:
