@@ -103,19 +103,16 @@ def tracer_steps(grid, fields, t_end: float, frames: int, *, limiter: str = "wen
     mode, split = ("explicit", split) if _geometry.special(grid) else \
         choose_stepping(stepping, split, op.faces, grid.spacing, steps)
     if mode == "multirate" and math.isfinite(per):
-        from ..tracer._implicit import split_faces
-        from ..tracer._multirate import HALO
-        a = _advection.advective_rate(op.faces, grid.spacing)
-        fast = a > a.max() / split
+        from ..tracer._implicit import partition
+        from ..tracer._multirate import box_of
+        fast, _, _, slow_rate = partition(op.faces, grid.spacing, split)
         if fast.any():
-            fe, _ = split_faces(op.faces, fast)
-            rate = float(_advection.advective_rate(fe, grid.spacing).max())
+            fastest = op.rate_adv               # max of the advective rate, all cells
+            rate = slow_rate
             n_sub = max(1, math.ceil(interval * rate / cfl - 1e-9))
             steps = n_sub * (frames - 1)
-            idx = np.nonzero(fast)
-            box = math.prod(min(n, int(i.max()) + 1 + HALO) - max(0, int(i.min()) - HALO)
-                            for i, n in zip(idx, fast.shape))
-            sub = 2 * math.ceil(0.5 * interval / n_sub * float(a.max()) / cfl)
+            box = math.prod(s.stop - s.start for s in box_of(fast))
+            sub = 2 * math.ceil(0.5 * interval / n_sub * fastest / cfl)
             # the grid's step and its implicit diffusion (measured as costly as the
             # explicit step's: docs/long_runs.md), the box's sub-steps
             per_step = cells / step_rate + cells / IMPLICIT_RATE + sub * box / step_rate

@@ -338,6 +338,17 @@ class ImexSplit:
         return Fz
 
 
+def partition(faces, h, split):
+    """``(fast, explicit, implicit, rate)``: the fast cells (explicit positivity rate
+    above ``max(a) / split``), the faces split between the slow and the fast ones
+    (:func:`split_faces`), and the largest positivity rate of the slow faces (1/time),
+    which sets the grid's step of ``stepping="imex"`` / ``"multirate"``."""
+    a = _advection.advective_rate(faces, h)
+    fast = a > a.max() / split
+    explicit, implicit = split_faces(faces, fast)
+    return fast, explicit, implicit, float(_advection.advective_rate(explicit, h).max())
+
+
 #: ``stepping="auto"``: smallest useful split (below it the run stays explicit)
 MIN_SPLIT = 4.0
 
@@ -365,11 +376,9 @@ def imex_result(result_cls, grid, f, P, outlet, interval, frames, tracker, *, op
     """
     from ._stepping import _FixedStepper, _rk_step
     t0 = time.perf_counter()
-    a = _advection.advective_rate(op.faces, grid.spacing)
-    fast = a > a.max() / split
-    fe, fi = split_faces(op.faces, fast)
+    fast, fe, fi, op.rate = partition(op.faces, grid.spacing, split)
     op.faces = fe
-    op.rate_adv = op.rate = float(_advection.advective_rate(fe, grid.spacing).max())
+    op.rate_adv = op.rate
     box = None
     if multirate and fast.any():
         from ._multirate import FastBox

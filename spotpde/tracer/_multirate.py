@@ -29,6 +29,13 @@ from ._advection import advective_rate
 HALO = 4
 
 
+def box_of(fast):
+    """The box of the fast cells: their bounding box grown by ``HALO`` cells, clipped to
+    the grid (a tuple of slices)."""
+    return tuple(slice(max(0, int(i.min()) - HALO), min(n, int(i.max()) + 1 + HALO))
+                 for i, n in zip(np.nonzero(fast), fast.shape))
+
+
 class FastBox:
     """The fast faces' explicit operator on their box.
 
@@ -44,9 +51,7 @@ class FastBox:
 
     def __init__(self, op, faces_fast, fast, ws, scheme, cfl, p_scale):
         dims = fast.ndim
-        idx = np.nonzero(fast)
-        self.box = tuple(slice(max(0, int(i.min()) - HALO), min(n, int(i.max()) + 1 + HALO))
-                         for i, n in zip(idx, fast.shape))
+        self.box = box_of(fast)
         shape = tuple(s.stop - s.start for s in self.box)
         names = ["z", "y", "x"] if dims == 3 else ["z", "x"]
         faces = {}
