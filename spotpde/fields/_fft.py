@@ -101,9 +101,8 @@ def _other_runnable() -> int:
             running = int(fh.read().split()[3].split("/")[0])
     except (OSError, ValueError, IndexError):
         return 0
-    own = 1
+    own = 0
     try:
-        own = 0
         for task in os.listdir("/proc/self/task"):
             try:
                 with open(f"/proc/self/task/{task}/stat") as fh:
