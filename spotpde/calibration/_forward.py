@@ -92,13 +92,17 @@ def bounds_for(case: Case, free: Mapping) -> dict[str, tuple[float, float, float
 class Targets:
     """The data vector of a fit: every target variable of the chosen observables.
 
+    The velocity field enters on a grid thinned to the coarse-graining width (``stride``
+    cells) and ``margin`` d away from the side walls and the floor.
+
     Attributes:
         y, sigma: values and standard errors (finite, ``sigma > 0``), flattened.
         replicates: ``(B, n)`` jackknife replicates of ``y``.
         slices: ``{(observable, variable): (slice, mask, shape)}`` to put a vector back.
     """
 
-    def __init__(self, measurement: xr.Dataset, observables: Sequence[str], stride: int = 1):
+    def __init__(self, measurement: xr.Dataset, observables: Sequence[str], stride: int = 1,
+                 margin: float = 2.0):
         self.measurement = measurement
         self.observables = tuple(observables)
         ys, ss, rs, self.slices = [], [], [], {}
@@ -108,10 +112,16 @@ class Targets:
                 v = measurement[var].values
                 se = measurement[var + "_se"].values
                 mask = np.isfinite(v) & np.isfinite(se) & (se > 0)
-                if name == "velocity" and stride > 1:
+                if name == "velocity":
+                    # thinned to the coarse-graining width; away from the side walls and
+                    # the floor, whose layers the continuum's uniform-density mean
+                    # velocity does not describe (docs/calibration.md, section 4)
                     thin = np.zeros_like(mask)
                     thin[::stride, ::stride] = True
-                    mask &= thin
+                    x, z = measurement["x"].values, measurement["z"].values
+                    inner = ((x >= x.min() + margin) & (x <= x.max() - margin))[None, :] \
+                        & (z >= z.min() + margin)[:, None]
+                    mask &= thin & inner
                 n = int(mask.sum())
                 ys.append(v[mask])
                 ss.append(se[mask])
