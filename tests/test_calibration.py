@@ -114,6 +114,22 @@ def test_free_keys_and_observables_are_checked_by_name():
         spotpde.fit(case, tracks, {"spots.b": None}, observables=["layers"])
     with pytest.raises(ValueError, match="^free: give the case keys"):
         spotpde.fit(case, tracks, {})
+    with pytest.raises(ValueError, match=r"^free: 'spots.b.values\[0\]' is not a numeric key"):
+        spotpde.fit(case, tracks, {"spots.b.values[0]": None})   # b is a number here
+
+
+def test_profile_entries_are_free_keys():
+    from spotpde.calibration._forward import assign, bounds_for
+
+    raw = copy.deepcopy(TRUTH)
+    raw["spots"]["b"] = {"z": [0.0, 24.0], "values": [1.0, 2.0]}
+    case = spotpde.load_case(raw)
+    start = bounds_for(case, {"spots.b.values[1]": (0.5, 4.0)})
+    assert start == {"spots.b.values[1]": (2.0, 0.5, 4.0)}
+    data = copy.deepcopy(case.data)
+    assign(data, "spots.b.values[1]", 3.0)
+    b = spotpde.load_case(data).spots.b
+    assert abs(b[-1, 0] - (1.0 + 2.0 * case.grid.z[-1] / 24.0)) < 1e-12
 
 
 def _cli(*args, cwd):
