@@ -68,8 +68,9 @@ def fit(case, tracks, free: Mapping[str, tuple[float, float] | None],
         free: ``{dotted key: (lower, upper)}`` (``None`` for default bounds), any numeric
             case keys: ``spots.b``, ``spots.b_par``, ``kernel.size``, ``kernel.height`` or
             ``kernel.volume``, ``kernel.aspect``, ``kernel.rule``, ``orifice.rate``, ...
-        observables: names from ``spotpde.calibration.FITTABLE`` (default the mean flow
-            and the diffusion: ``("velocity", "diffusion")``).
+        observables: names from ``spotpde.calibration.FITTABLE``, or one variable of one
+            (``"diffusion.b_p"``: the horizontal diffusion alone); default the mean flow and
+            the diffusion: ``("velocity", "diffusion")``.
         blocks: time blocks of the errors. options, heights: as
             ``spotpde.observables.measure``.
         measurement: a ready ``spotpde.observables.measure`` result (then ``tracks`` may
@@ -99,7 +100,8 @@ def fit(case, tracks, free: Mapping[str, tuple[float, float] | None],
         if isinstance(tracks, (str, os.PathLike)):
             tracks = read(tracks)
         names = observables_for_fit(observables)
-        measurement = measure(tracks, case, names, blocks=blocks, options=options, heights=heights)
+        measurement = measure(tracks, case, list(names), blocks=blocks, options=options,
+                              heights=heights)
     else:
         names = observables_for_fit(observables if observables is not None
                                     else measurement.attrs.get("observables"))

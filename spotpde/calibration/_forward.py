@@ -123,14 +123,14 @@ class Targets:
         slices: ``{(observable, variable): (slice, mask, shape)}`` to put a vector back.
     """
 
-    def __init__(self, measurement: xr.Dataset, observables: Sequence[str], stride: int = 1,
-                 margin: float = 2.0):
+    def __init__(self, measurement: xr.Dataset, observables: Mapping[str, Sequence[str]],
+                 stride: int = 1, margin: float = 2.0):
         self.measurement = measurement
         self.observables = tuple(observables)
         ys, ss, rs, self.slices = [], [], [], {}
         start = 0
-        for name in self.observables:
-            for var in TARGETS[name]:
+        for name, variables in observables.items():
+            for var in variables:
                 v = measurement[var].values
                 se = measurement[var + "_se"].values
                 mask = np.isfinite(v) & np.isfinite(se) & (se > 0)
@@ -240,14 +240,30 @@ def jacobian(forward: Forward, values, steps, base: np.ndarray | None = None,
     return np.column_stack([(c - base) / s for c, s in zip(cols, steps)])
 
 
-def observables_for_fit(observables) -> tuple[str, ...]:
-    """The fit's observables, checked (``layers`` cannot be fitted)."""
+def observables_for_fit(observables) -> dict[str, tuple[str, ...]]:
+    """The fit's observables and their fitted variables, checked.
+
+    Each entry is an observable (``"diffusion"``: all its target variables) or one
+    variable of it (``"diffusion.b_p"``: the horizontal diffusion alone). ``layers``
+    cannot be fitted (it needs a tracer run and has no time blocks).
+
+    Returns:
+        ``{observable: variables}`` in the order given.
+    """
     names = FIT_DEFAULT if observables is None else (
         (observables,) if isinstance(observables, str) else tuple(observables))
-    bad = [n for n in names if n not in FITTABLE]
-    if bad or not names:
+    out: dict[str, tuple[str, ...]] = {}
+    bad = []
+    for entry in names:
+        name, _, var = str(entry).partition(".")
+        if name not in FITTABLE or (var and var not in TARGETS[name]):
+            bad.append(entry)
+            continue
+        chosen = (var,) if var else TARGETS[name]
+        out[name] = tuple(dict.fromkeys(out.get(name, ()) + chosen))
+    if bad or not out:
         raise ValueError(f"observables: cannot fit {', '.join(map(repr, bad)) or 'nothing'}; "
-                         f"valid: {', '.join(FITTABLE)} (layers: predict them with "
-                         "spotpde.observables.predict)")
-    return names
-
+                         f"valid: {', '.join(FITTABLE)}, or one variable of one "
+                         "(e.g. 'diffusion.b_p'); layers: predict them with "
+                         "spotpde.observables.predict")
+    return out

@@ -95,6 +95,9 @@ def result_dataset(*, keys, initial, lower, upper, value, cov, cov_naive, residu
                               dims=dims, coords=coords, attrs=dict(src.attrs))
             da.attrs.pop("observable", None)
             ds[out] = da
+    if "growth" in targets.observables:        # the falls the variances are plotted against
+        ds["lag_fall"] = measurement["lag_fall"].copy()
+        ds["lag_fall"].attrs.pop("observable", None)
     n = targets.y.size
     chi2 = float(residuals @ residuals)
     chi2r = chi2 / max(n - p, 1)
