@@ -178,6 +178,63 @@ def build_cells(px, pz, status, x0, z0, cell, ncx, ncz, cell_start, cell_idx):
             fill[c] += 1
 
 
+@njit(cache=True, inline="always")
+def persistence(gamma):
+    """``(fresh, keep)`` of the horizontal step rule with step correlation ``gamma``.
+
+    ``fresh = sqrt(1 - gamma^2)``: the weight of the new normal in the AR(1) (Gaussian)
+    rule; ``keep = (1 + gamma)/2``: the binary walk's probability of keeping its sign (its
+    successive steps then correlate by ``2 keep - 1 = gamma``). Either way the long-distance
+    diffusion length is ``b = b0 (1 + gamma)/(1 - gamma)`` (docs/montecarlo.md section 2).
+    """
+    return math.sqrt(1.0 - gamma * gamma), 0.5 * (1.0 + gamma)
+
+
+@njit(cache=True, inline="always")
+def first_direction(steps):
+    """Stationary unit step variable of a new walk: ``N(0, 1)`` or ``+-1``."""
+    if steps == STEPS_GAUSSIAN:
+        return np.random.standard_normal()
+    return 1.0 if np.random.random() < 0.5 else -1.0
+
+
+@njit(cache=True, inline="always")
+def next_direction(xi, steps, gamma, fresh, keep):
+    """The next unit step variable: ``gamma xi + fresh eta`` (Gaussian, ``eta ~ N(0, 1)``)
+    or ``xi`` kept with probability ``keep``, else ``-xi`` (binary); see :func:`persistence`.
+    :func:`advance` and :func:`spot_walks` both step by this rule."""
+    if steps == STEPS_GAUSSIAN:
+        return gamma * xi + fresh * np.random.standard_normal()
+    return xi if np.random.random() < keep else -xi
+
+
+@njit(cache=True, inline="always")
+def coverage_inverse(x, tab_x0, tab_dx, phi_tab):
+    """``1 / phi(x)`` from the coverage table ``phi_tab`` at ``tab_x0 + k tab_dx`` (d).
+
+    Linear interpolation of ``phi`` between the two nodes around ``x`` (clamped to the
+    table's ends; error ``<= tab_dx^2 max|phi''| / 8``); 1 for a table of length 0 or 1
+    (no renormalisation).
+    """
+    n = phi_tab.size
+    if n <= 1:
+        return 1.0
+    tt = (x - tab_x0) / tab_dx
+    kt = min(max(int(math.floor(tt)), 0), n - 2)
+    ft = min(max(tt - kt, 0.0), 1.0)
+    return 1.0 / ((1.0 - ft) * phi_tab[kt] + ft * phi_tab[kt + 1])
+
+
+@njit(cache=True)
+def coverage_inverse_eval(x, tab_x0, tab_dx, phi_tab):
+    """Vectorised :func:`coverage_inverse` over the array ``x`` (for tests)."""
+    out = np.empty(x.size)
+    xf = x.ravel()
+    for i in range(xf.size):
+        out[i] = coverage_inverse(xf[i], tab_x0, tab_dx, phi_tab)
+    return out
+
+
 @njit(cache=True)
 def _inject_x(profile, xc, width):
     if profile == PROFILE_POINT:
@@ -231,13 +288,11 @@ def advance(prm, cnt, n_ticks,
     pxo = prm.probe_x0; pzo = prm.probe_z0; ph = prm.probe_h
     dt = prm.dt
     tx0 = prm.tab_x0; tdx = prm.tab_dx
-    ntab = phi_tab.size
     shape = prm.shape; profile = prm.profile; walls = prm.walls; steps = prm.steps
     ncx = prm.ncx; ncz = prm.ncz; pnx = prm.pnx; pnz = prm.pnz
     nbatch = prm.n_batch; ticks_total = prm.ticks_total; use_probes = prm.probes
     cap = sx.size
-    fresh = math.sqrt(1.0 - gamma * gamma)
-    keep_p = 0.5 * (1.0 + gamma)
+    fresh, keep_p = persistence(gamma)
     n_rec = rec_ticks.size
     n_levels = levels.size
     npart = px.size
@@ -266,10 +321,7 @@ def advance(prm, cnt, n_ticks,
             j = cnt[C_NACTIVE]
             sx[j] = _inject_x(profile, xc, width)
             sz[j] = z0
-            if steps == STEPS_GAUSSIAN:
-                sxi[j] = np.random.standard_normal()
-            else:
-                sxi[j] = 1.0 if np.random.random() < 0.5 else -1.0
+            sxi[j] = first_direction(steps)
             cnt[C_NACTIVE] += 1
         cnt[C_INJECTED] += n_new
         # ---- rebuild the particle cell list if someone may have left its cell -----------
@@ -283,10 +335,7 @@ def advance(prm, cnt, n_ticks,
         j = 0
         while j < cnt[C_NACTIVE]:
             # horizontal step: AR(1) (Gaussian) or persistent +-1 (binary), unit variance
-            if steps == STEPS_GAUSSIAN:
-                xi = gamma * sxi[j] + fresh * np.random.standard_normal()
-            else:
-                xi = sxi[j] if np.random.random() < keep_p else -sxi[j]
+            xi = next_direction(sxi[j], steps, gamma, fresh, keep_p)
             ox = sx[j]
             oz = sz[j]
             nx_ = ox + sigx * xi
@@ -315,12 +364,7 @@ def advance(prm, cnt, n_ticks,
             cx_ = ox + lam * dx
             cz_ = oz + lam * dz
             # free-volume-conserving walls: influence divided by the kernel's coverage
-            inv_phi = 1.0
-            if ntab > 1:
-                tt = (cx_ - tx0) / tdx
-                kt = min(max(int(math.floor(tt)), 0), ntab - 2)
-                ft = min(max(tt - kt, 0.0), 1.0)
-                inv_phi = 1.0 / ((1.0 - ft) * phi_tab[kt] + ft * phi_tab[kt + 1])
+            inv_phi = coverage_inverse(cx_, tx0, tdx, phi_tab)
             # ---- particles --------------------------------------------------------------
             if npart > 0:
                 ix_lo = int(math.floor((cx_ - rh - skin - x0) / cell))
@@ -451,25 +495,19 @@ def advance(prm, cnt, n_ticks,
 def spot_walks(n_walks, n_steps, sig, gamma, steps, seed_):
     """Horizontal positions of ``n_walks`` free spot walks after each of ``n_steps`` steps.
 
-    The same step rule as :func:`advance` (no walls): ``xi_{n+1} = gamma xi_n +
-    sqrt(1 - gamma^2) eta`` (Gaussian) or keep the sign with probability ``(1+gamma)/2``
-    (binary); step ``sig * xi``; ``xi_0`` stationary.
+    The step rule of :func:`advance` (no walls; :func:`first_direction`,
+    :func:`next_direction`): ``xi_{n+1} = gamma xi_n + sqrt(1 - gamma^2) eta`` (Gaussian)
+    or keep the sign with probability ``(1+gamma)/2`` (binary); step ``sig * xi``;
+    ``xi_0`` stationary.
     """
     np.random.seed(seed_)
     out = np.empty((n_walks, n_steps))
-    fresh = math.sqrt(1.0 - gamma * gamma)
-    keep_p = 0.5 * (1.0 + gamma)
+    fresh, keep_p = persistence(gamma)
     for k in range(n_walks):
-        if steps == STEPS_GAUSSIAN:
-            xi = np.random.standard_normal()
-        else:
-            xi = 1.0 if np.random.random() < 0.5 else -1.0
+        xi = first_direction(steps)
         x = 0.0
         for n in range(n_steps):
-            if steps == STEPS_GAUSSIAN:
-                xi = gamma * xi + fresh * np.random.standard_normal()
-            else:
-                xi = xi if np.random.random() < keep_p else -xi
+            xi = next_direction(xi, steps, gamma, fresh, keep_p)
             x += sig * xi
             out[k, n] = x
     return out
