@@ -37,8 +37,8 @@ import tomli_w
 
 sys.path.insert(0, os.fspath(Path(__file__).resolve().parent))
 import _lmp  # noqa: E402
-import geometry as geo  # noqa: E402
-import params as prm  # noqa: E402
+import silo_geometry as geo  # noqa: E402
+import silo_params as prm  # noqa: E402
 
 EXIT_BAD_INPUT, EXIT_CLOG, EXIT_NO_LAMMPS = 2, 3, 4
 DUMP_FORMAT = '"%d %d %.4f %.4f %.4f %.4f"'
@@ -76,6 +76,7 @@ class Silo:
         self.exit_log: list[tuple[float, int]] = []
         self.pending = 0
         self.timing: dict[str, dict] = {}
+        self.git = _git_state()            # at the start: the scripts this run used
         self.lmp = _lmp.open_lammps(out / "log.lammps")
 
     def cmd(self, text: str) -> None:
@@ -265,7 +266,7 @@ def provenance(run: Silo, status: str, wall: float, cpu: float, argv: list[str])
     return {
         "status": status,
         "command": shlex.join(["python", *argv]),
-        "git": _git_state(),
+        "git": run.git,
         "versions": {**_lmp.versions(run.lmp), "python": platform.python_version(),
                      "numpy": np.__version__},
         "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
