@@ -23,6 +23,7 @@ Exit status: 0 done; 2 bad parameters or command line; 3 the flow stopped (clog)
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import platform
@@ -67,7 +68,7 @@ def _write_data(path: Path, p: dict, walls, grains, diam, lo, hi) -> None:
 class Silo:
     """One LAMMPS run of the silo described by the parameters ``p``, writing into ``out``."""
 
-    def __init__(self, p: dict, out: Path):
+    def __init__(self, p: dict, out: Path, params_file: str):
         self.p, self.out = p, out
         self.dims, self.iv = p["silo"]["dims"], geo.vertical(p)
         self.rng = np.random.default_rng(p["run"]["seed"])
@@ -76,7 +77,8 @@ class Silo:
         self.exit_log: list[tuple[float, int]] = []
         self.pending = 0
         self.timing: dict[str, dict] = {}
-        self.git = _git_state()            # at the start: the scripts this run used
+        self.git = _git_state(params_file)  # at the start: the scripts this run used
+        self.git["params_file_sha256"] = hashlib.sha256(Path(params_file).read_bytes()).hexdigest()
         self.lmp = _lmp.open_lammps(out / "log.lammps")
 
     def cmd(self, text: str) -> None:
@@ -253,10 +255,12 @@ def _git(*args: str) -> str | None:
         return None
 
 
-def _git_state() -> dict:
-    """The commit of the scripts and whether they differ from it (uncommitted changes)."""
-    here = os.fspath(Path(__file__).parent)
-    changes = _git("status", "--porcelain", "--", here)
+def _git_state(params_file: str) -> dict:
+    """The commit of the scripts, and whether they or the parameter file differ from it."""
+    here = Path(__file__).resolve().parent
+    files = [os.fspath(here / n) for n in
+             ("silo.py", "_lmp.py", "silo_geometry.py", "silo_params.py")]
+    changes = _git("status", "--porcelain", "--", *files, os.path.abspath(params_file))
     return {"commit": _git("rev-parse", "HEAD"),
             "scripts_modified": None if changes is None else bool(changes)}
 
@@ -318,7 +322,7 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     wall, cpu = time.perf_counter(), time.process_time()
     try:
-        run = Silo(p, out)
+        run = Silo(p, out, args.params)
     except _lmp.LammpsMissing as exc:
         print(f"silo.py: {exc}", file=sys.stderr)
         return EXIT_NO_LAMMPS
