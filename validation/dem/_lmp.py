@@ -16,7 +16,7 @@ import os
 import sys
 from pathlib import Path
 
-_MPI_NAMES = ("libmpi.so.12", "libmpi.so")
+_MPI_NAMES = ("libmpi.so.12", "libmpi.so", "libmpi.12.dylib", "libmpi.dylib")
 
 
 class LammpsMissing(RuntimeError):
