@@ -13,8 +13,9 @@ that frame (gap below ``--contact`` d). ``q`` is tuned so that the kept lines ar
 about ``--fraction`` of the run's.
 
 Writes DATADIR/tracks.dump.gz (same ``dump custom`` layout), exits.txt and params.toml
-(copies), and provenance.json: the run's provenance plus a ``subsample`` entry with the
-exact command, the method, counts, sizes and the SHA-256 of the tracks file.
+(copies), and provenance.json: the run's provenance (its ``files`` are the run
+directory's) plus a ``subsample`` entry with the exact command, the method, counts,
+sizes, the files written and the SHA-256 of the tracks file.
 """
 
 from __future__ import annotations
@@ -122,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
     summary.update({"command": shlex.join(["python", os.path.relpath(sys.argv[0]), *argv]),
                     "bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()})
     prov["subsample"] = summary
-    prov["files"] = sorted(f.name for f in out.iterdir()) + ["provenance.json"]
+    summary["files"] = sorted(f.name for f in out.iterdir()) + ["provenance.json"]
     tmp = out / "provenance.json.tmp"
     tmp.write_text(json.dumps(prov, indent=1) + "\n")
     os.replace(tmp, out / "provenance.json")
