@@ -28,7 +28,6 @@ import json
 import os
 import platform
 import shlex
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -37,6 +36,7 @@ import numpy as np
 import tomli_w
 
 sys.path.insert(0, os.fspath(Path(__file__).resolve().parent))
+import _git  # noqa: E402
 import _lmp  # noqa: E402
 import silo_geometry as geo  # noqa: E402
 import silo_params as prm  # noqa: E402
@@ -77,7 +77,9 @@ class Silo:
         self.exit_log: list[tuple[float, int]] = []
         self.pending = 0
         self.timing: dict[str, dict] = {}
-        self.git = _git_state(params_file)  # at the start: the scripts this run used
+        # at the start: the scripts this run used, and its parameter file
+        self.git = _git.state("silo.py", "_lmp.py", "silo_geometry.py", "silo_params.py",
+                              os.path.abspath(params_file))
         self.git["params_file_sha256"] = hashlib.sha256(Path(params_file).read_bytes()).hexdigest()
         self.lmp = _lmp.open_lammps(out / "log.lammps")
 
@@ -245,24 +247,6 @@ def _atomic_write(path: Path, text: str) -> None:
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(text)
     os.replace(tmp, path)
-
-
-def _git(*args: str) -> str | None:
-    try:
-        return subprocess.run(["git", *args], cwd=Path(__file__).parent, capture_output=True,
-                              text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return None
-
-
-def _git_state(params_file: str) -> dict:
-    """The commit of the scripts, and whether they or the parameter file differ from it."""
-    here = Path(__file__).resolve().parent
-    files = [os.fspath(here / n) for n in
-             ("silo.py", "_lmp.py", "silo_geometry.py", "silo_params.py")]
-    changes = _git("status", "--porcelain", "--", *files, os.path.abspath(params_file))
-    return {"commit": _git("rev-parse", "HEAD"),
-            "scripts_modified": None if changes is None else bool(changes)}
 
 
 def provenance(run: Silo, status: str, wall: float, cpu: float, argv: list[str]) -> dict:
