@@ -48,10 +48,11 @@ def _block_stats(values: np.ndarray) -> tuple[float, float]:
     return float(values.mean()), float(values.std(ddof=1) / math.sqrt(values.size))
 
 
-def flow_rate(run: Path, blocks: int) -> tuple[float, float]:
-    """Grains per unit time through the orifice in the measuring window, and its error."""
+def flow_rate(run: Path, blocks: int, window: float | None = None) -> tuple[float, float]:
+    """Grains per unit time through the orifice in the measuring window (or its first
+    ``window`` time units), and its error."""
     t, n = np.loadtxt(run / "exits.txt", unpack=True, ndmin=2)
-    m = t > 0
+    m = (t > 0) & (t <= (window if window else np.inf) + 1e-9)
     t, n = t[m], n[m]
     edges = np.linspace(0.0, t.max(), blocks + 1)
     per = np.array([n[(t > a) & (t <= b)].sum() / (b - a) for a, b in zip(edges, edges[1:])])
@@ -111,15 +112,17 @@ def centreline_variance(pos, band, blocks, half_width=1.5):
     return out
 
 
-def measure(run: Path, heights, band, blocks) -> dict:
+def measure(run: Path, heights, band, blocks, window: float | None = None) -> dict:
     prov = json.loads((run / "provenance.json").read_text())
     p = prov["params"]
     if p["silo"]["dims"] != 2:
         raise ValueError(f"run: {run} is a 3D run; measures.py reads 2D runs")
     frames = dump.read(run / "tracks.dump.gz")
+    if window:
+        frames = [f for f in frames if f.step * p["time"]["step"] <= window + 1e-9]
     _, steps, pos, _ = dump.tracks(frames)
     times = steps * p["time"]["step"]
-    res = {"run": str(run), "flow_rate": flow_rate(run, blocks),
+    res = {"run": str(run), "flow_rate": flow_rate(run, blocks, window),
            "profiles": {str(h): speed_profile(pos, times, p["silo"]["width"], h, blocks)
                         for h in heights},
            "centreline": centreline_variance(pos, band, blocks),
@@ -162,10 +165,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--band", type=float, nargs=2, default=[20.0, 50.0],
                     help="heights between which centreline grains start")
     ap.add_argument("--blocks", type=int, default=10)
+    ap.add_argument("--window", type=float,
+                    help="use only the first WINDOW time units of each measuring window")
     ap.add_argument("--json", help="write all measures to this JSON file")
     args = ap.parse_args(argv)
     try:
-        results = [measure(Path(r), args.heights, args.band, args.blocks) for r in args.runs]
+        results = [measure(Path(r), args.heights, args.band, args.blocks, args.window)
+                   for r in args.runs]
     except (OSError, ValueError) as exc:
         print(f"measures.py: {exc}", file=sys.stderr)
         return 2
