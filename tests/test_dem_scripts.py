@@ -19,6 +19,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import spotpde.tracks
+
 DEM = Path(__file__).resolve().parents[1] / "validation" / "dem"
 REFERENCE = DEM / "data" / "silo2d"
 sys.path.insert(0, str(DEM))
@@ -242,3 +244,18 @@ def test_reference_grains_fall_freely_below_the_orifice(reference):
     p = prov["params"]
     a = _free_fall_acceleration(frames, p["time"]["output"], 1, p["silo"]["orifice"] / 2)
     assert a == pytest.approx(-1.0, abs=0.03)
+
+
+def test_reference_dataset_reads_with_spotpde_tracks(reference):
+    """spotpde's own reader sees the same grains and positions as the scripts' reader."""
+    prov, frames = reference
+    p = prov["params"]
+    ds = spotpde.tracks.read(REFERENCE / "tracks.dump.gz", fps=1.0 / p["time"]["step"])
+    ids, steps, pos, radius = lammps_dump.tracks(frames)
+    assert ds.sizes["particle"] == len(ids) == prov["subsample"]["particles_kept"]
+    np.testing.assert_allclose(ds["t"], steps * p["time"]["step"], rtol=1e-12)
+    order = np.argsort(ds["id"].values)
+    assert np.array_equal(ds["id"].values[order], ids)
+    np.testing.assert_array_equal(ds["x"].values[order], pos[..., 0])
+    np.testing.assert_array_equal(ds["z"].values[order], pos[..., 1])
+    np.testing.assert_allclose(ds["diameter"].values[order], 2 * radius, rtol=1e-12)
