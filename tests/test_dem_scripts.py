@@ -164,6 +164,16 @@ def test_bad_parameters_give_one_line_exit_2_and_no_output(tmp_path, override, k
     assert not out.exists()
 
 
+def test_unreadable_parameter_files_give_one_line_exit_2(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[silo\n")
+    for path, words in ((tmp_path / "missing.toml", "cannot read"), (bad, "is not valid TOML")):
+        res = _script("silo.py", str(path), "-o", str(tmp_path / "out"))
+        assert res.returncode == 2 and res.stderr.startswith("silo.py: params:")
+        assert words in res.stderr and res.stderr.count("\n") == 1
+    assert not (tmp_path / "out").exists()
+
+
 def test_subsample_keeps_whole_tracks_and_touching_pairs(tiny2d, tmp_path):
     run, _, frames = tiny2d
     out = tmp_path / "sub"

@@ -30,6 +30,7 @@ import platform
 import shlex
 import sys
 import time
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -296,7 +297,13 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out)
     try:
         p = prm.load(args.params, args.set)
-    except (OSError, prm.ParamError) as exc:
+    except OSError as exc:
+        print(f"silo.py: params: cannot read {args.params}: {exc.strerror}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except tomllib.TOMLDecodeError as exc:
+        print(f"silo.py: params: {args.params} is not valid TOML: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except prm.ParamError as exc:
         print(f"silo.py: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     if out.exists() and any(out.iterdir()):
