@@ -40,7 +40,7 @@ def _block(P, d, centre, relax, shift=None):
     status = np.zeros(n, np.int64)
     cs, ci = np.zeros(ncx * ncz + 1, np.int64), np.zeros(n, np.int64)
     K.build_cells(px, pz, status, BOX[0], BOX[2], cell, ncx, ncz, cs, ci)
-    rx = mc.Relax.of(relax).resolved(2.5, 4.0)
+    rx = mc.Relax.of({"radius": 3.5, **relax}).resolved(2.5)
     rp = _relax.relax_params(rx, d, 12.0, True)
     blk, old = np.zeros(n, np.int64), np.zeros((n, 2))
     nb = _relax.relax_block(*BOX, rp, centre[0], centre[1], centre[0], centre[1] + 0.1, px, pz,
@@ -63,7 +63,7 @@ def test_block_relaxation_holds_the_centre_of_mass(packing):
     assert np.all(np.abs(com) <= 64 * EPS * np.abs(P).max()), com
     assert np.abs(moved).max() > 1e-3  # the relaxation did move the grains
     assert len(blk) > 20
-    # grains beyond the radius (2.5 + 1 d) are not moved
+    # grains beyond the radius (3.5 d) are not moved
     far = np.setdiff1d(np.arange(len(d)), blk)
     np.testing.assert_array_equal(new[far], P[far] + shift[far])
 

@@ -81,6 +81,8 @@ def frames_of(data, diameters=None):
 def _box(P, box):
     if box is not None:
         return np.asarray(box, float)
+    if len(P) == 0:
+        return np.zeros(2 * P.shape[1])
     lo, hi = P.min(axis=0), P.max(axis=0)
     # (x0, x1, z0, z1[, y0, y1]) in the order of the coordinates
     return np.ravel(np.column_stack([lo, hi]))

@@ -53,16 +53,18 @@ class Relax:
             last relaxation (default 1: after each step). Rycroft, Wong and Bazant
             (Powder Technol. 200, 1, 2010) relax much less often.
         radius: grains within this distance of the spot's influence centre (or segment)
-            are relaxed; the grains beyond it are felt as fixed obstacles. Default
-            (None): the distance at which the kernel falls to 1 % of its centre value
-            (``R`` for the disk, ``3.03 sigma`` Gaussian, ``4.61 l`` exponential, along
-            the larger axis) plus one grain diameter.
+            are relaxed, the displaced block; the grains beyond it are felt as fixed
+            obstacles. Default (None): the distance at which the kernel falls to 1 % of
+            its centre value (``R`` for the disk, ``3.03 sigma`` Gaussian, ``4.61 l``
+            exponential, along the larger axis).
         polydispersity: relative spread of the diameters (default 0.1).
         distribution: ``"uniform"`` (uniform in ``[1 - s, 1 + s]`` d) or ``"gaussian"``
             (standard deviation ``s`` d, truncated at 3 standard deviations).
-        opening: width (d) of the floor's opening, centred on the orifice; elsewhere the
-            floor repels grains and keeps them. Default (None): the orifice width, at
-            least one grain diameter.
+        opening: width (d) of the floor's opening, centred on the orifice; beside it the
+            floor repels grains and keeps them. Default (None): no floor, grains leave
+            wherever the spots push them below ``z0``, as without relaxation. A repelling
+            floor beside a slot makes the packing above the slot compact (measured in
+            docs/packing.md: the spots keep pushing grains into the floor).
         margin: a pair within ``(d_i + d_j)/2 + margin`` at the start of a relaxation is
             watched during it (default 0.2 d; grains move far less in a few iterations).
     """
@@ -110,11 +112,10 @@ class Relax:
             return cls(**value)
         raise TypeError(f"relax: must be None, a Relax or a dict, got {type(value).__name__}")
 
-    def resolved(self, kernel_radius: float, orifice_width: float) -> "Relax":
-        """A copy with ``radius`` and ``opening`` filled in from the kernel and orifice."""
-        radius = self.radius if self.radius is not None else kernel_radius + 1.0
-        opening = self.opening if self.opening is not None else max(orifice_width, 1.0)
-        return replace(self, radius=float(radius), opening=float(opening))
+    def resolved(self, kernel_radius: float) -> "Relax":
+        """A copy with ``radius`` filled in from the kernel's (d)."""
+        radius = self.radius if self.radius is not None else kernel_radius
+        return replace(self, radius=float(radius))
 
 
 def draw_diameters(n: int, polydispersity: float = 0.1, distribution: str = "uniform",
@@ -163,7 +164,7 @@ def relax_params(relax: Relax | None, diameters: np.ndarray, xc: float, reflecti
     """The :class:`RelaxParams` of a resolved :class:`Relax` (``None``: off)."""
     if relax is None:
         return RelaxParams(0, 0.0, 0, 1, 0.0, 0.0, -math.inf, math.inf, 0.0, 0, 0)
-    half = 0.5 * float(relax.opening)
+    half = math.inf if relax.opening is None else 0.5 * float(relax.opening)
     dmax = float(np.max(diameters)) if len(diameters) else 1.0
     return RelaxParams(1, float(relax.alpha), int(relax.iterations), int(relax.every),
                        float(relax.radius), float(relax.margin), float(xc) - half,
@@ -273,7 +274,7 @@ def relax_block(x0, x1, z0, z1, rp, ax, az, bx, bz, px, pz, diam, status,
     list (cells of side ``cell``, valid to within ``skin / 2``); those beyond ``radius``
     are fixed obstacles. ``px``, ``pz`` are updated in place; ``blk[:n]`` receives the
     indices of the relaxed grains and ``old[:n]`` their positions before (for the
-    caller's bookkeeping). Cost: O(M^2) pair search among the M gathered grains once,
+    caller's bookkeeping). Cost: O(M) for the M gathered grains (a local cell list),
     then O(pairs) per iteration; independent of the total number of grains.
 
     Returns:
@@ -290,32 +291,29 @@ def relax_block(x0, x1, z0, z1, rp, ax, az, bx, bz, px, pz, diam, status,
     ix_hi = min(max(int(math.floor((hi_x - x0) / cell)), 0), ncx - 1)
     iz_lo = min(max(int(math.floor((lo_z - z0) / cell)), 0), ncz - 1)
     iz_hi = min(max(int(math.floor((hi_z - z0) / cell)), 0), ncz - 1)
-    # pass 1: count, pass 2: fill
+    cap = 0
+    for icz in range(iz_lo, iz_hi + 1):
+        cap += cell_start[icz * ncx + ix_hi + 1] - cell_start[icz * ncx + ix_lo]
+    gidx = np.empty(cap, np.int64)
+    mobile = np.empty(cap, np.int64)
     m = 0
-    for ps in range(2):
-        if ps == 1:
-            gidx = np.empty(m, np.int64)
-            mobile = np.empty(m, np.int64)
-            m = 0
-        for icz in range(iz_lo, iz_hi + 1):
-            for icx in range(ix_lo, ix_hi + 1):
-                c = icz * ncx + icx
-                for q in range(cell_start[c], cell_start[c + 1]):
-                    i = cell_idx[q]
-                    if status[i] != _P_IN:
-                        continue
-                    d2 = _seg_dist2(px[i], pz[i], ax, az, bx, bz)
-                    if d2 >= Rc * Rc:
-                        continue
-                    if ps == 1:
-                        gidx[m] = i
-                        mobile[m] = 1 if d2 < R * R else 0
-                    m += 1
+    for icz in range(iz_lo, iz_hi + 1):
+        for q in range(cell_start[icz * ncx + ix_lo], cell_start[icz * ncx + ix_hi + 1]):
+            i = cell_idx[q]
+            if status[i] != _P_IN:
+                continue
+            d2 = _seg_dist2(px[i], pz[i], ax, az, bx, bz)
+            if d2 < Rc * Rc:
+                gidx[m] = i
+                mobile[m] = 1 if d2 < R * R else 0
+                m += 1
     n_mob = 0
     for k in range(m):
         n_mob += mobile[k]
     if n_mob == 0:
         return 0
+    gidx = gidx[:m]
+    mobile = mobile[:m]
     lx = np.empty(m)
     lz = np.empty(m)
     ld = np.empty(m)
@@ -323,7 +321,7 @@ def relax_block(x0, x1, z0, z1, rp, ax, az, bx, bz, px, pz, diam, status,
         lx[k] = px[gidx[k]]
         lz[k] = pz[gidx[k]]
         ld[k] = diam[gidx[k]]
-    pa, pb, n_pairs = _local_pairs(lx, lz, ld, mobile, rp.margin)
+    pa, pb, n_pairs = _grid_pairs(lx, lz, ld, mobile, rp.dmax + rp.margin, rp.margin)
     box = np.array([x0, x1, z0, z1])
     _sweeps(lx, lz, ld, mobile, pa, pb, n_pairs, box, rp, rp.iterations, True, -1.0)
     n = 0
@@ -340,33 +338,14 @@ def relax_block(x0, x1, z0, z1, rp, ax, az, bx, bz, px, pz, diam, status,
 
 
 @njit(cache=True)
-def _local_pairs(lx, lz, ld, mobile, margin):
-    """Pairs (a < b, at least one mobile) closer than ``(d_a + d_b)/2 + margin``: O(m^2)."""
-    m = lx.size
-    cnt = 0
-    for ps in range(2):
-        if ps == 1:
-            pa = np.empty(cnt, np.int64)
-            pb = np.empty(cnt, np.int64)
-            cnt = 0
-        for a in range(m):
-            for b in range(a + 1, m):
-                if mobile[a] == 0 and mobile[b] == 0:
-                    continue
-                dx = lx[a] - lx[b]
-                dz = lz[a] - lz[b]
-                lim = 0.5 * (ld[a] + ld[b]) + margin
-                if dx * dx + dz * dz < lim * lim:
-                    if ps == 1:
-                        pa[cnt] = a
-                        pb[cnt] = b
-                    cnt += 1
-    return pa, pb, cnt
-
-
-@njit(cache=True)
-def _grid_pairs(lx, lz, ld, x0, z0, cell, ncx, ncz, margin):
-    """All pairs closer than ``(d_a + d_b)/2 + margin`` through a cell list: O(N)."""
+def _grid_pairs(lx, lz, ld, mobile, cell, margin):
+    """Pairs (at least one of them mobile) closer than ``(d_a + d_b)/2 + margin``, found
+    through a cell list of side ``cell >= dmax + margin`` over the points' bounding box:
+    O(N)."""
+    x0 = lx.min()
+    z0 = lz.min()
+    ncx = int((lx.max() - x0) / cell) + 1
+    ncz = int((lz.max() - z0) / cell) + 1
     n = lx.size
     cs = np.zeros(ncx * ncz + 1, np.int64)
     cid = np.empty(n, np.int64)
@@ -382,12 +361,11 @@ def _grid_pairs(lx, lz, ld, x0, z0, cell, ncx, ncz, margin):
     for i in range(n):
         idx[fill[cid[i]]] = i
         fill[cid[i]] += 1
-    cnt = 0
-    for ps in range(2):
-        if ps == 1:
-            pa = np.empty(cnt, np.int64)
-            pb = np.empty(cnt, np.int64)
-            cnt = 0
+    cap = 8 * n + 16
+    while True:
+        pa = np.empty(cap, np.int64)
+        pb = np.empty(cap, np.int64)
+        cnt = 0
         for a in range(n):
             cx = cid[a] % ncx
             cz = cid[a] // ncx
@@ -396,16 +374,19 @@ def _grid_pairs(lx, lz, ld, x0, z0, cell, ncx, ncz, margin):
                     c = jz * ncx + jx
                     for q in range(cs[c], cs[c + 1]):
                         b = idx[q]
-                        if b <= a:
+                        if b <= a or (mobile[a] == 0 and mobile[b] == 0):
                             continue
                         dx = lx[a] - lx[b]
                         dz = lz[a] - lz[b]
                         lim = 0.5 * (ld[a] + ld[b]) + margin
                         if dx * dx + dz * dz < lim * lim:
-                            if ps == 1:
+                            if cnt < cap:
                                 pa[cnt] = a
                                 pb[cnt] = b
                             cnt += 1
+        if cnt <= cap:
+            break
+        cap = cnt  # crowded (an unrelaxed packing): once more with room for all
     return pa, pb, cnt
 
 
@@ -416,14 +397,10 @@ def relax_all(lx, lz, ld, mobile, box, rp, max_iterations, tol, hold_com):
     10 sweeps, and convergence is only accepted on a freshly built list. Returns
     (sweeps, largest overlap)."""
     cell = rp.dmax + rp.margin
-    x0 = box[0]
-    z0 = box[2]
-    ncx = max(1, int(math.ceil((box[1] - box[0]) / cell)) + 1)
-    ncz = max(1, int(math.ceil((box[3] - box[2]) / cell)) + 1)
     done = 0
     worst = math.inf
     while done < max_iterations:
-        pa, pb, n_pairs = _grid_pairs(lx, lz, ld, x0, z0, cell, ncx, ncz, rp.margin)
+        pa, pb, n_pairs = _grid_pairs(lx, lz, ld, mobile, cell, rp.margin)
         k = min(10, max_iterations - done)
         worst, moved = _sweeps(lx, lz, ld, mobile, pa, pb, n_pairs, box, rp, k, hold_com, tol)
         done += moved

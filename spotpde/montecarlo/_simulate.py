@@ -256,7 +256,8 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
         relax: packing constraints (docs/packing.md): ``None`` (default, grains do not
             interact), a :class:`~spotpde.montecarlo.Relax` or a dict of its fields. The
             grains near each spot are relaxed by soft-core repulsion after its steps, with
-            the block's centre of mass held; walls and the floor beside the opening repel.
+            the block's centre of mass held; reflecting walls repel, and so does the floor
+            beside ``relax.opening`` if one is given.
         diameters: ``(N,)`` grain diameters in d (with ``relax``; default: drawn from
             ``relax.polydispersity`` and ``relax.distribution`` with ``seed``).
 
@@ -358,7 +359,7 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
             raise ValueError(f"diameters: need {n} positive values, one per particle, "
                              f"got shape {np.shape(diameters)}")
     if relax is not None:
-        relax = relax.resolved(_relax_reach(kp), orifice.width)
+        relax = relax.resolved(_relax_reach(kp))
     rp = relax_params(relax, diam, orifice.x, grid.walls == "reflecting")
     blk = np.zeros(max(n, 1), np.int64)
     old = np.zeros((max(n, 1), 2))
