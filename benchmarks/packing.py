@@ -12,8 +12,8 @@ second of the numba loop
 and the ratio of the cost per spot step to the baseline's, all measured interleaved
 (best of ``--repeat``). Then the scaling check: the same flux per unit width in silos
 20 d and 80 d wide (4 times more grains): the cost per spot step with relaxation must
-not grow. ``--drain`` also times one drainage of a silo of about 10^4 grains (60 d x
-130 d, a 16 d slot, a stronger kernel ``w = 0.01`` and steps of 0.5 d, so a grain moves
+not grow. ``--drain`` also times one drainage of a silo of about 10^4 grains (66 d x
+150 d, a 16 d slot, a stronger kernel ``w = 0.01`` and steps of 0.5 d, so a grain moves
 0.005 d per spot step; relaxation after every step, then every 4th) and prints the
 discharged fraction.
 
@@ -82,8 +82,8 @@ def scaling(t_end):
               f"{1e6 * r.cpu_time / r.counters['spot_steps']:.2f} us per spot step")
 
 
-def drain(every=1, t_end=2500.0):
-    g, P, d = _packing(60.0, 130.0)
+def drain(every=1, t_end=3200.0):
+    g, P, d = _packing(66.0, 150.0)
     t0 = time.perf_counter()
     kernel = kernels.Uniform(radius=2.5, height=0.01, dims=2)
     r = mc.simulate(g, Orifice(x=0.0, width=16.0, rate=32.0), SPOTS, kernel, rule=0.5,
@@ -92,7 +92,7 @@ def drain(every=1, t_end=2500.0):
     wall = time.perf_counter() - t0
     out = (r.status == 1).mean()
     print(f"\ndrainage (w = 0.01, step 0.5 d, relax every {every}): {len(P)} grains, "
-          f"60 d x 130 d, 16 d slot, t = {r.t_end:.0f}: "
+          f"66 d x 150 d, 16 d slot, t = {r.t_end:.0f}: "
           f"{out:.1%} discharged; {r.counters['spot_steps']:.3g} spot steps, loop CPU "
           f"{r.cpu_time:.0f} s, wall {wall:.0f} s")
 

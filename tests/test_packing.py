@@ -119,3 +119,18 @@ def test_frames_of_accepts_a_tracks_dataset():
     assert np.all(dia[1] == 0.9)
     with pytest.raises(ValueError, match="^data"):
         frames_of(xr.Dataset({"x": ("particle", P[:, 0])}))
+
+
+def test_three_dimensional_frames_simple_cubic_lattice():
+    a = 1.03
+    k = np.arange(12) * a
+    P = np.stack(np.meshgrid(k, k, k, indexing="ij"), axis=-1).reshape(-1, 3)
+    ds = radial_distribution(P, r_max=1.9, dr=0.05)
+    shell = 4.0 / 3.0 * math.pi * (ds.r_hi.values**3 - ds.r_lo.values**3)
+    per_shell = ds.g.values * float(ds.n) * shell
+    expected = np.zeros_like(per_shell)
+    for r, n in ((a, 6), (math.sqrt(2) * a, 12), (math.sqrt(3) * a, 8)):
+        expected[int(r / 0.05)] += n
+    np.testing.assert_allclose(per_shell, expected, rtol=1e-12, atol=1e-12)
+    phi = packing_fraction(P, [3.0, 8.0], [3.0, 8.0], diameters=np.full(len(P), 0.9))
+    assert float(phi.phi[0, 0]) == pytest.approx(math.pi / 6 * 0.9**3 / a**3, rel=1e-10)
