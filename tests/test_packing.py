@@ -134,3 +134,23 @@ def test_three_dimensional_frames_simple_cubic_lattice():
     np.testing.assert_allclose(per_shell, expected, rtol=1e-12, atol=1e-12)
     phi = packing_fraction(P, [3.0, 8.0], [3.0, 8.0], diameters=np.full(len(P), 0.9))
     assert float(phi.phi[0, 0]) == pytest.approx(math.pi / 6 * 0.9**3 / a**3, rel=1e-10)
+
+
+def test_a_monte_carlo_run_read_as_tracks_gives_its_frames_and_diameters():
+    import spotpde
+    from spotpde.fields import kernels
+    from spotpde.parameters import Orifice, Spots
+
+    g = Grid(2, (-5.0, 5.0), (0.0, 10.0), 1.0)
+    P, d, _ = mc.dense_packing(g, 0.75, seed=2)
+    r = mc.simulate(g, Orifice(width=10.0, rate=5.0), Spots(drift=1.0, b=1.3),
+                    kernels.Uniform(radius=2.0, height=0.01, dims=2), particles=P, diameters=d,
+                    relax={}, tracked="all", records=3, t_end=6.0, probes=False, seed=1)
+    tracks = spotpde.tracks.read(r)
+    pos, dia = frames_of(tracks)
+    assert len(pos) == 4  # t = 0 and three snapshots
+    np.testing.assert_allclose(np.sort(dia[0]), np.sort(d))
+    last = r.positions[-1][np.isfinite(r.positions[-1, :, 0])]
+    np.testing.assert_allclose(np.sort(pos[-1][:, 0]), np.sort(last[:, 0]))
+    ov = overlap_distribution(tracks)
+    assert ov.attrs["samples"] == 4
