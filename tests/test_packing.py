@@ -10,11 +10,15 @@ import math
 import numpy as np
 import pytest
 import xarray as xr
+from scipy.special import j1
 
+import spotpde
 from spotpde import montecarlo as mc
 from spotpde.analysis import (frames_of, number_variance, overlap_distribution,
                               packing_fraction, radial_distribution)
+from spotpde.fields import kernels
 from spotpde.grid import Grid
+from spotpde.parameters import Orifice, Spots
 
 A = 1.03  # lattice spacing: the shells 1.03, 1.784, 2.06, 2.725 fall inside 0.05 d bins
 
@@ -77,8 +81,6 @@ def _lattice_disk_variance(R, a, nmax=200):
     """Var of the count of a square lattice (spacing a, random offset) in a disk of
     radius R: rho^2 sum_{G != 0} |W(G)|^2, W(k) = 2 pi R J1(kR) / k (Poisson summation),
     summed for |n|, |m| <= nmax plus the tail R / (pi a nmax) of the rest."""
-    from scipy.special import j1
-
     k = np.arange(-nmax, nmax + 1)
     G = 2 * np.pi * np.hypot(*np.meshgrid(k, k)) / a
     G = G[G > 0]
@@ -137,10 +139,6 @@ def test_three_dimensional_frames_simple_cubic_lattice():
 
 
 def test_a_monte_carlo_run_read_as_tracks_gives_its_frames_and_diameters():
-    import spotpde
-    from spotpde.fields import kernels
-    from spotpde.parameters import Orifice, Spots
-
     g = Grid(2, (-5.0, 5.0), (0.0, 10.0), 1.0)
     P, d, _ = mc.dense_packing(g, 0.75, seed=2)
     r = mc.simulate(g, Orifice(width=10.0, rate=5.0), Spots(drift=1.0, b=1.3),
