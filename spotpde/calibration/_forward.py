@@ -36,19 +36,40 @@ DEFAULT_BOUNDS = {
 FITTABLE = ("velocity", "profiles", "width", "diffusion", "growth", "correlation", "pairs")
 
 
+def _key_path(key: str) -> list:
+    """``"spots.b.values[1]"`` -> ``["spots", "b", "values", 1]``: table keys, and list
+    indices for an entry of a profile (``spots.b = { z = [...], values = [...] }``)."""
+    out = []
+    for part in key.split("."):
+        name, bracket, rest = part.partition("[")
+        out.append(name)
+        while bracket:
+            index, _, rest = rest.partition("]")
+            out.append(int(index))
+            bracket, rest = (rest[:1] == "[", rest[1:])
+    return out
+
+
 def assign(data: dict, key: str, value) -> None:
-    """Set the dotted ``key`` of a case mapping (``"spots.b"``)."""
-    *tables, last = key.split(".")
+    """Set the dotted ``key`` of a case mapping (``"spots.b"``, ``"spots.b.values[1]"``)."""
+    *path, last = _key_path(key)
     node = data
-    for t in tables:
+    for t in path:
         node = node[t]
     node[last] = value
 
 
 def _lookup(data: Mapping, key: str):
+    try:
+        path = _key_path(key)
+    except ValueError:
+        return None
     node = data
-    for t in key.split("."):
-        if not isinstance(node, Mapping) or t not in node:
+    for t in path:
+        if isinstance(t, int):
+            if not isinstance(node, list) or not -len(node) <= t < len(node):
+                return None
+        elif not isinstance(node, Mapping) or t not in node:
             return None
         node = node[t]
     return node
@@ -72,9 +93,10 @@ def bounds_for(case: Case, free: Mapping) -> dict[str, tuple[float, float, float
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ValueError(f"free: {key!r} is not a numeric key of the case (its value is "
                              f"{value!r}); numeric keys include {', '.join(DEFAULT_BOUNDS)}, "
-                             "orifice.rate, orifice.width")
+                             "orifice.rate, orifice.width, and entries of profiles such as "
+                             "spots.b.values[1]")
         if bounds is None:
-            bounds = DEFAULT_BOUNDS.get(key, (value / 10.0, value * 10.0) if value > 0
+            bounds = DEFAULT_BOUNDS.get(key.split(".values[")[0], (value / 10.0, value * 10.0) if value > 0
                                         else (value - 1.0, value + 1.0))
         try:
             lo, hi = (float(b) for b in bounds)
@@ -92,13 +114,17 @@ def bounds_for(case: Case, free: Mapping) -> dict[str, tuple[float, float, float
 class Targets:
     """The data vector of a fit: every target variable of the chosen observables.
 
+    The velocity field enters on a grid thinned to the coarse-graining width (``stride``
+    cells) and ``margin`` d away from the side walls and the floor.
+
     Attributes:
         y, sigma: values and standard errors (finite, ``sigma > 0``), flattened.
         replicates: ``(B, n)`` jackknife replicates of ``y``.
         slices: ``{(observable, variable): (slice, mask, shape)}`` to put a vector back.
     """
 
-    def __init__(self, measurement: xr.Dataset, observables: Sequence[str], stride: int = 1):
+    def __init__(self, measurement: xr.Dataset, observables: Sequence[str], stride: int = 1,
+                 margin: float = 2.0):
         self.measurement = measurement
         self.observables = tuple(observables)
         ys, ss, rs, self.slices = [], [], [], {}
@@ -108,10 +134,16 @@ class Targets:
                 v = measurement[var].values
                 se = measurement[var + "_se"].values
                 mask = np.isfinite(v) & np.isfinite(se) & (se > 0)
-                if name == "velocity" and stride > 1:
+                if name == "velocity":
+                    # thinned to the coarse-graining width; away from the side walls and
+                    # the floor, whose layers the continuum's uniform-density mean
+                    # velocity does not describe (docs/calibration.md, section 4)
                     thin = np.zeros_like(mask)
                     thin[::stride, ::stride] = True
-                    mask &= thin
+                    x, z = measurement["x"].values, measurement["z"].values
+                    inner = ((x >= x.min() + margin) & (x <= x.max() - margin))[None, :] \
+                        & (z >= z.min() + margin)[:, None]
+                    mask &= thin & inner
                 n = int(mask.sum())
                 ys.append(v[mask])
                 ss.append(se[mask])

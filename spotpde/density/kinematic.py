@@ -27,7 +27,7 @@ from ..grid import Grid
 from ..parameters import Orifice, Spots
 from . import _geometry, spot_density
 
-__all__ = ["point_source", "slot_profile", "speed", "velocity", "streamlines"]
+__all__ = ["point_source", "slot_profile", "fit_profile", "speed", "velocity", "streamlines"]
 
 
 def point_source(x, z, b, dims: int = 2):
@@ -125,6 +125,50 @@ def slot_profile(x, s, orifice: Orifice, x_range: tuple[float, float] | None = N
     xs, ss = np.broadcast_arrays(x, s)
     terms = coef * np.cos(np.multiply.outer(xs - x0, k)) * np.exp(-np.multiply.outer(ss, k**2))
     return 1.0 / L + (2.0 / L) * terms.sum(axis=-1)
+
+
+def fit_profile(x, v, orifice: Orifice, x_range: tuple[float, float] | None = None,
+                walls: str = "reflecting", *, se=None, broadening: float = 0.0,
+                s_range: tuple[float, float] = (1e-3, 1e6)) -> tuple[float, float]:
+    """Fit a downward-speed profile by the Kinematic Model: ``v ~ A K(x; s + broadening)``.
+
+    ``K`` is :func:`slot_profile` with the orifice's profile and the walls; the amplitude
+    ``A`` (the flux through the height) is linear and solved exactly for each ``s``; ``s``
+    (``b z`` for a constant ``b``, d**2) by a grid search on a log scale refined with
+    Brent's bounded method. ``broadening`` (d**2) is added to ``s`` in the model, e.g.
+    ``width**2 / 2`` for a profile coarse-grained with a Gaussian of that width.
+
+    Args:
+        x, v: positions (d) and speeds; NaN entries are ignored.
+        orifice, x_range, walls: as :func:`slot_profile`.
+        se: standard errors of ``v`` (weights ``1/se**2``), or None for equal weights.
+
+    Returns:
+        ``(s, A)``; NaN if fewer than 4 finite points.
+    """
+    import math
+
+    from scipy.optimize import minimize_scalar
+
+    x, v = np.asarray(x, float), np.asarray(v, float)
+    ok = np.isfinite(v) & (np.isfinite(se) if se is not None else True)
+    if ok.sum() < 4:
+        return math.nan, math.nan
+    w = np.ones(ok.sum()) if se is None else 1.0 / np.maximum(np.asarray(se, float)[ok], 1e-300) ** 2
+    xv, vv = x[ok], v[ok]
+
+    def chi2(s):
+        K = slot_profile(xv, s + broadening, orifice, x_range, walls)
+        A = np.sum(w * vv * K) / np.sum(w * K * K)
+        return float(np.sum(w * (vv - A * K) ** 2)), float(A)
+
+    grid_s = np.geomspace(s_range[0], s_range[1], 80)
+    j = int(np.argmin([chi2(s)[0] for s in grid_s]))
+    lo, hi = grid_s[max(j - 1, 0)], grid_s[min(j + 1, grid_s.size - 1)]
+    res = minimize_scalar(lambda ls: chi2(math.exp(ls))[0], bounds=(math.log(lo), math.log(hi)),
+                          method="bounded", options={"xatol": 1e-7})
+    s = math.exp(res.x)
+    return s, chi2(s)[1]
 
 
 def speed(grid: Grid, orifice: Orifice, b, progress=None) -> np.ndarray:

@@ -169,8 +169,9 @@ def flux_factor(case: Case) -> float:
     if case.model == "void":
         return 1.0
     k = case.kernel
-    h = min(case.grid.spacing, 0.05 * k.reach[0]) if hasattr(k, "reach") else case.grid.spacing
-    w = k.sample(h)
+    axes = [np.linspace(-r, r, 201 if k.dims == 2 else 61)
+            for r in (k.reach[0],) * (k.dims - 1) + (k.reach[1],)]
+    w = k.evaluate(*np.meshgrid(*axes, indexing="ij"))      # point values: exact for a disk
     return float(np.sum(w / (1.0 + w)) / np.sum(w))
 
 

@@ -122,7 +122,9 @@ def velocity_correlation(source, case=None, *, bins=None, lag: int = 1, componen
 # -- pair separation -------------------------------------------------------------------------------
 
 def _kaplan_meier(fall, event, grid_f):
-    """Kaplan-Meier survival on ``grid_f`` from event/censoring falls."""
+    """Kaplan-Meier survival on ``grid_f`` from event/censoring falls (NaN without pairs)."""
+    if fall.size == 0:
+        return np.full(np.shape(grid_f), np.nan)
     order = np.argsort(fall, kind="stable")
     fall, event = fall[order], event[order]
     at_risk = fall.size - np.arange(fall.size)

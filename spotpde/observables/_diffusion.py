@@ -108,6 +108,23 @@ def _bin_mean(index, nb, val, weights, good):
         return num / den
 
 
+def _focusing(grid, u, speed, fall):
+    """Factors by which a converging mean flow changes the variance of one segment.
+
+    Neighbouring mean paths converge at the rate ``ds/dx`` per unit fall (``s = u_x/|u_z|``,
+    negative where the flow converges), so a horizontal deviation shrinks while it grows
+    and ``Var dx = 2 b_p fall (1 + fall ds/dx)`` to first order in ``fall ds/dx``;
+    vertically the speed rises toward the orifice and ``Var = 2 b_p_par fall
+    (1 - fall d|u_z|/dz / |u_z|)``. The model applies them so that it predicts what the
+    segment estimator measures (both are first order: keep ``fall`` below the height).
+    """
+    h = grid.spacing
+    slope = u["u_x"] / speed
+    ds_dx = np.gradient(slope, h, axis=1)
+    dv_dz = np.gradient(speed, h, axis=0)
+    return {"b_p": 1.0 + fall * ds_dx, "b_p_par": 1.0 - fall * dv_dz / speed}
+
+
 def _estimator_bias(u, speed, velocity, fall):
     """Per cell, the segment residual the data's estimator sees from the mean flow alone.
 
@@ -130,9 +147,9 @@ def _variance(s):
     return (s["q2"] - s["q1"] ** 2 / n) / (n - 1)
 
 
-def diffusion(source, case=None, *, fall: float = 1.0, bins=(5.0, 5.0), blocks: int = BLOCKS,
-              velocity: xr.Dataset | None = None, like: xr.Dataset | None = None,
-              **kwargs) -> xr.Dataset:
+def diffusion(source, case=None, *, fall: float = 1.0, bins=(5.0, 5.0), region=None,
+              blocks: int = BLOCKS, velocity: xr.Dataset | None = None,
+              like: xr.Dataset | None = None, **kwargs) -> xr.Dataset:
     """Diffusion lengths ``b_p``, ``b_p_par`` (d) and Peclet numbers ``Pe_x``, ``Pe_z`` per bin.
 
     Args:
@@ -140,6 +157,9 @@ def diffusion(source, case=None, *, fall: float = 1.0, bins=(5.0, 5.0), blocks: 
         case: the case (its grid).
         fall: fall between the heights that cut the tracks into segments, d.
         bins: ``(height, width)`` of the bins, d.
+        region: ``(x0, x1, z0, z1)``: segments whose midpoint lies outside are left out
+            (default: the silo less 2 d at each side wall, whose layers have a particle
+            density and mean flow unlike the bulk's).
         blocks: time blocks of the jackknife (tracks).
         velocity: the tracks' :func:`velocity_field` (computed if not given).
         like: for a model result, the tracks' measurement (its bins and segment counts).
@@ -153,9 +173,14 @@ def diffusion(source, case=None, *, fall: float = 1.0, bins=(5.0, 5.0), blocks: 
     grid = grid_of(case)
     if like is not None:
         fall, bins = float(like.attrs["fall"]), tuple(like.attrs["bins"])
+        region = tuple(like.attrs["region"])
     fall = check_positive("fall", fall)
+    if region is None:
+        region = (grid.x_range[0] + 2.0, grid.x_range[1] - 2.0, *grid.z_range)
+    x0, x1, z0, z1 = _region(grid, region)
     ez, ex = _bins(grid, bins)
-    attrs = {"fall": fall, "bins": np.asarray(bins, float)}
+    attrs = {"fall": fall, "bins": np.asarray(bins, float),
+             "region": np.asarray([x0, x1, z0, z1])}
     names = {"b_p": units("d", "horizontal diffusion length per unit fall, D_xx/|u_z|"),
              "b_p_par": units("d", "vertical diffusion length per unit fall, D_zz/|u_z|"),
              "Pe_x": units("1", "horizontal Peclet number d/b_p"),
@@ -165,13 +190,16 @@ def diffusion(source, case=None, *, fall: float = 1.0, bins=(5.0, 5.0), blocks: 
         speed = np.where(u["u_z"] < 0, -u["u_z"], np.nan)
         weights = (like["segment_histogram"].values if like is not None
                    else grid_active(grid).astype(float))
+        weights = weights * (((grid.x >= x0) & (grid.x <= x1))[None, :]
+                             & ((grid.z >= z0) & (grid.z <= z1))[:, None])
         ds = xr.Dataset(coords=_bin_coords(ez, ex), attrs=attrs)
         Z, X = np.meshgrid(grid.z, grid.x, indexing="ij")
         index = _bin_index(ez, ex, Z.ravel(), X.ravel())
         nb = (ez.size - 1) * (ex.size - 1)
         bias = _estimator_bias(u, speed, velocity, fall)
+        focus = _focusing(grid, u, speed, fall)
         for name, comp in (("b_p", "D_xx"), ("b_p_par", "D_zz")):
-            val = np.asarray(source[comp].values, float) / speed
+            val = np.asarray(source[comp].values, float) / speed * focus[name]
             good = np.isfinite(val) & (weights > 0)
             mean = _bin_mean(index, nb, val, weights, good)
             if bias is not None:   # what the data's own mean flow adds to the estimator
@@ -198,7 +226,8 @@ def diffusion(source, case=None, *, fall: float = 1.0, bins=(5.0, 5.0), blocks: 
     xm, zm, dx, dt, ts = xm[ok], zm[ok], dx[ok], dt[ok], ts[ok]
     ux = sample(grid, vel["u_x"].values, xm, zm)
     uz = sample(grid, vel["u_z"].values, xm, zm)
-    good = np.isfinite(ux) & np.isfinite(uz) & (uz < 0)
+    good = (np.isfinite(ux) & np.isfinite(uz) & (uz < 0) & (xm >= x0) & (xm <= x1)
+            & (zm >= z0) & (zm <= z1))
     xm, zm, dx, dt, ts, ux, uz = (a[good] for a in (xm, zm, dx, dt, ts, ux, uz))
     rx = dx - fall * ux / (-uz)
     rz = (dt - fall / (-uz)) * (-uz)

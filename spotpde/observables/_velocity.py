@@ -12,13 +12,10 @@ counts as weights, so that both are the same average of the same field.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
-import scipy.optimize
 import xarray as xr
 
-from ..density.kinematic import slot_profile
+from ..density.kinematic import fit_profile
 from ._common import (BLOCKS, block_of, case_for, check_positive, coarse_grain, grid_of,
                       is_tracks, jackknife, model_velocity, positions, smooth_like, units,
                       with_errors)
@@ -135,29 +132,6 @@ def velocity_profiles(source, case=None, heights=None, **kwargs) -> xr.Dataset:
 
 # -- the Kinematic-Model width -----------------------------------------------------------------
 
-def _fit_row(x, v, se, z, orifice, x_range, walls, s_cg, grid_s):
-    """Weighted least squares of ``v ~ A K(x; b z + s_cg)``: returns ``(b, A)``."""
-    ok = np.isfinite(v) & (np.isfinite(se) if se is not None else True)
-    if ok.sum() < 4:
-        return math.nan, math.nan
-    w = 1.0 / np.maximum(se[ok], 1e-300) ** 2 if se is not None else np.ones(ok.sum())
-    xv, vv = x[ok], v[ok]
-
-    def chi2(s):
-        K = slot_profile(xv, s + s_cg, orifice, x_range, walls)
-        A = np.sum(w * vv * K) / np.sum(w * K * K)
-        return float(np.sum(w * (vv - A * K) ** 2)), A
-
-    values = [chi2(s)[0] for s in grid_s]
-    j = int(np.argmin(values))
-    lo, hi = grid_s[max(j - 1, 0)], grid_s[min(j + 1, grid_s.size - 1)]
-    res = scipy.optimize.minimize_scalar(lambda ls: chi2(math.exp(ls))[0],
-                                         bounds=(math.log(lo), math.log(hi)), method="bounded",
-                                         options={"xatol": 1e-6})
-    s = math.exp(res.x)
-    return s / z, chi2(s)[1]
-
-
 def width_of(vel: xr.Dataset, case, heights=None, weights: xr.Dataset | None = None) -> xr.Dataset:
     """Kinematic-Model width ``b(z) = s(z) / z`` and flux at each height of the profiles.
 
@@ -174,16 +148,16 @@ def width_of(vel: xr.Dataset, case, heights=None, weights: xr.Dataset | None = N
     ref = prof if weights is None else profiles_of(weights, grid, heights)
     se_all = ref["v_z_se"].values if "v_z_se" in ref else None
     s_cg = 0.5 * float(vel.attrs.get("cg_width", 0.0)) ** 2
-    grid_s = np.geomspace(1e-3, 1e3 * (grid.x_range[1] - grid.x_range[0]) ** 2, 80)
+    s_range = (1e-3, 1e3 * (grid.x_range[1] - grid.x_range[0]) ** 2)
     x = prof["x"].values
     out_b, out_a = [], []
     reps = prof["v_z_jk"].values if "v_z_jk" in prof else None
     for j, z in enumerate(prof["height"].values):
         se = None if se_all is None else se_all[j]
         rows = [prof["v_z"].values[j]] + ([] if reps is None else list(reps[:, j]))
-        fits = [_fit_row(x, v, se, z, case.orifice, grid.x_range, grid.walls, s_cg, grid_s)
-                for v in rows]
-        out_b.append([f[0] for f in fits])
+        fits = [fit_profile(x, v, case.orifice, grid.x_range, grid.walls, se=se,
+                            broadening=s_cg, s_range=s_range) for v in rows]
+        out_b.append([f[0] / z for f in fits])
         out_a.append([f[1] for f in fits])
     out_b, out_a = np.asarray(out_b), np.asarray(out_a)
     ds = xr.Dataset(coords={"height": prof["height"]})

@@ -80,7 +80,7 @@ def uniform_flow(kernel, b, b_par=0.0, rule=0.5, diffusivity="passage", *, cage=
             _CACHE[ckey] = mean_fall(tensor, contact, separation, "contact",
                                      axisym=dims == 3) * ratio
         fall = _CACHE[ckey] / ratio
-    area = float(kernel.V1) ** 2 / float(kernel.V2)
+    area = float(kernel.participation_area)
     diameter = 2.0 * math.sqrt(area / math.pi) if dims == 2 else (6.0 * area / math.pi) ** (1 / 3)
     grain = math.pi / 4.0 if dims == 2 else math.pi / 6.0
     phi = PACKING[dims] if packing is None else float(packing)
