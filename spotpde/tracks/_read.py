@@ -214,8 +214,6 @@ def _montecarlo_table(result):
     table = pd.DataFrame({"frame": np.repeat(np.arange(n_t), n_p),
                           "particle": np.tile(np.asarray(result.tracked), n_t),
                           "x": pos[..., 0].ravel(), "z": pos[..., 1].ravel()})
-    if getattr(result, "diameters", None) is not None:  # grains with sizes (relaxation)
-        table["diameter"] = np.tile(np.asarray(result.diameters)[result.tracked], n_t)
     table = table[np.isfinite(table["x"].to_numpy())]
     return table, {"times": times, "dimension": 2}
 
