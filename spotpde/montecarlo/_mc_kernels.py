@@ -15,6 +15,8 @@ from typing import NamedTuple, get_type_hints
 import numpy as np
 from numba import njit
 
+from ._relax import relax_block
+
 
 class Params(NamedTuple):
     """The constants of one run, as :func:`advance` reads them.
@@ -102,7 +104,8 @@ WALLS_REFLECTING, WALLS_OPEN = 0, 1
 STEPS_GAUSSIAN, STEPS_BINARY = 0, 1
 # -- counters (int64 array ``cnt``) ---------------------------------------------------------
 C_TICK, C_INJECTED, C_STEPS, C_UPDATES, C_NACTIVE, C_PENDING, C_REBUILDS, C_REMOVED = range(8)
-NC = 8
+C_RELAXATIONS, C_RELAXED = 8, 9  # relaxations done, grains relaxed (summed)
+NC = 10
 # -- particle status ------------------------------------------------------------------------
 P_IN, P_ORIFICE, P_SIDE = 0, 1, 2
 
@@ -235,6 +238,53 @@ def coverage_inverse_eval(x, tab_x0, tab_dx, phi_tab):
     return out
 
 
+@njit(cache=True, inline="always")
+def _place(i, oxp, ozp, npx, npz, x0, x1, z0, walls, open_lo, open_hi, t_mid,
+           px, pz, status, moved, track_slot, levels, lev_next, cross_x, cross_t,
+           exit_x, exit_t):
+    """Move particle ``i`` from ``(oxp, ozp)`` to ``(npx, npz)``: mirror it at reflecting
+    walls or let it leave through open ones, record its level crossings (tracked) and
+    its exit through the floor's opening ``open_lo < x < open_hi`` (the whole floor
+    without relaxation). Returns its distance moved since the last binning (0 if it left
+    sideways)."""
+    if npx < x0 or npx > x1:
+        if walls == WALLS_OPEN:
+            status[i] = P_SIDE
+            px[i] = npx
+            pz[i] = npz
+            return 0.0
+        if npx < x0:
+            npx = 2.0 * x0 - npx
+        if npx > x1:
+            npx = 2.0 * x1 - npx
+        npx = min(max(npx, x0), x1)
+    m = moved[i] + abs(npx - oxp) + abs(npz - ozp)
+    moved[i] = m
+    ts = track_slot[i]
+    if ts >= 0:
+        k = lev_next[ts]
+        while k >= 0 and npz < levels[k]:
+            if ozp >= levels[k]:
+                f = (ozp - levels[k]) / (ozp - npz)
+                cross_x[ts, k] = oxp + f * (npx - oxp)
+            else:
+                cross_x[ts, k] = npx
+            cross_t[ts, k] = t_mid
+            k -= 1
+        lev_next[ts] = k
+    if npz < z0:
+        xe = npx  # a grain already below the floor (beside the opening) leaves where it is
+        if ozp >= z0:
+            xe = oxp + (ozp - z0) / (ozp - npz) * (npx - oxp)
+        if open_lo < xe < open_hi:
+            status[i] = P_ORIFICE
+            exit_x[i] = xe
+            exit_t[i] = t_mid
+    px[i] = npx
+    pz[i] = npz
+    return m
+
+
 @njit(cache=True)
 def _inject_x(profile, xc, width):
     if profile == PROFILE_POINT:
@@ -249,7 +299,7 @@ def advance(prm, cnt, n_ticks,
             sx, sz, sxi,
             px, pz, status, moved, cell_start, cell_idx,
             track_slot, tpos, rec_ticks, levels, lev_next, cross_x, cross_t, exit_x, exit_t,
-            probe, rho_hist, phi_tab):
+            probe, rho_hist, phi_tab, rp, diam, srel, blk, old):
     """Advance the simulation by at most ``n_ticks`` ticks.
 
     Each tick (duration ``dt = Delta / v_s``): inject ``Poisson(Q0 dt)`` spots on the floor,
@@ -274,6 +324,12 @@ def advance(prm, cnt, n_ticks,
         rho_hist: (n_batch, pnz, pnx) spot-count histogram (one sample per spot per tick).
         phi_tab: kernel coverage ``phi`` at ``x = tab_x0 + k tab_dx`` (linear
             interpolation; ``walls = "renormalise"``), or a length-0/1 array: ``phi = 1``.
+        rp: ``_relax.RelaxParams`` (``rp.on = 0``: no relaxation, the floor is open
+            everywhere). diam: grain diameters. srel: per spot, the start ``(x, z)`` of
+            the segment not yet relaxed and the steps since. blk, old: scratch of
+            ``_relax.relax_block`` (size: all particles).
+        After a spot's step (every ``rp.every``-th, and its last), the grains near it are
+        relaxed (``_relax.relax_block``) and moved as by the step itself (``_place``).
 
     Returns:
         Number of ticks done.
@@ -321,6 +377,9 @@ def advance(prm, cnt, n_ticks,
             j = cnt[C_NACTIVE]
             sx[j] = _inject_x(profile, xc, width)
             sz[j] = z0
+            srel[j, 0] = sx[j]
+            srel[j, 1] = z0
+            srel[j, 2] = 0.0
             sxi[j] = first_direction(steps)
             cnt[C_NACTIVE] += 1
         cnt[C_INJECTED] += n_new
@@ -387,44 +446,33 @@ def advance(prm, cnt, n_ticks,
                                 continue
                             w *= inv_phi
                             cnt[C_UPDATES] += 1
-                            oxp = px[i]
-                            ozp = pz[i]
-                            npx = oxp - w * dx
-                            npz = ozp - w * dz
-                            if npx < x0 or npx > x1:
-                                if walls == WALLS_OPEN:
-                                    status[i] = P_SIDE
-                                    px[i] = npx
-                                    pz[i] = npz
-                                    continue
-                                if npx < x0:
-                                    npx = 2.0 * x0 - npx
-                                if npx > x1:
-                                    npx = 2.0 * x1 - npx
-                                npx = min(max(npx, x0), x1)
-                            m = moved[i] + abs(npx - oxp) + abs(npz - ozp)
-                            moved[i] = m
+                            m = _place(i, px[i], pz[i], px[i] - w * dx, pz[i] - w * dz,
+                                       x0, x1, z0, walls, rp.open_lo, rp.open_hi, t_mid,
+                                       px, pz, status, moved, track_slot, levels, lev_next,
+                                       cross_x, cross_t, exit_x, exit_t)
                             if m > maxmoved:
                                 maxmoved = m
-                            ts = track_slot[i]
-                            if ts >= 0:
-                                k = lev_next[ts]
-                                while k >= 0 and npz < levels[k]:
-                                    if ozp >= levels[k]:
-                                        f = (ozp - levels[k]) / (ozp - npz)
-                                        cross_x[ts, k] = oxp + f * (npx - oxp)
-                                    else:
-                                        cross_x[ts, k] = npx
-                                    cross_t[ts, k] = t_mid
-                                    k -= 1
-                                lev_next[ts] = k
-                            if npz < z0:
-                                status[i] = P_ORIFICE
-                                f = (ozp - z0) / (ozp - npz)
-                                exit_x[i] = oxp + f * (npx - oxp)
-                                exit_t[i] = t_mid
-                            px[i] = npx
-                            pz[i] = npz
+            # ---- relaxation of the grains around the spot (packing constraints) -------
+            if rp.on == 1 and npart > 0:
+                ns = srel[j, 2] + 1.0
+                if ns >= rp.every or remove or nz_ >= z1:
+                    nb = relax_block(x0, x1, z0, z1, rp, srel[j, 0], srel[j, 1], cx_, cz_,
+                                     px, pz, diam, status, cell_start, cell_idx, cell, ncx,
+                                     ncz, skin, blk, old)
+                    for q in range(nb):
+                        i = blk[q]
+                        m = _place(i, old[q, 0], old[q, 1], px[i], pz[i], x0, x1, z0, walls,
+                                   rp.open_lo, rp.open_hi, t_mid, px, pz, status, moved,
+                                   track_slot, levels, lev_next, cross_x, cross_t, exit_x,
+                                   exit_t)
+                        if m > maxmoved:
+                            maxmoved = m
+                    cnt[C_RELAXATIONS] += 1
+                    cnt[C_RELAXED] += nb
+                    ns = 0.0
+                    srel[j, 0] = nx_
+                    srel[j, 1] = nz_
+                srel[j, 2] = ns
             # ---- probes (frozen particles on the measurement grid) ------------------------
             if use_probes:
                 jx_lo = max(int(math.ceil((cx_ - rh - pxo) / ph)), 0)
@@ -468,6 +516,9 @@ def advance(prm, cnt, n_ticks,
                 sx[j] = sx[last]
                 sz[j] = sz[last]
                 sxi[j] = sxi[last]
+                srel[j, 0] = srel[last, 0]
+                srel[j, 1] = srel[last, 1]
+                srel[j, 2] = srel[last, 2]
                 cnt[C_NACTIVE] = last
                 cnt[C_REMOVED] += 1
                 continue
