@@ -145,7 +145,7 @@ def void(args):
         return
     print(f"  time to 4e5, explicit before (extrapolated) / implicit (run in full): "
           f"{t_exp_old / t_imp:.0f}x   (target >= 10x)")
-    s = tracer.solve_steady(grid, f, P0)
+    s = tracer.solve_steady(grid, f, P0, scheme="hybrid")   # the implicit operator
     hh = grid.spacing ** 2
     ob = ri.outflow_by_boundary
     print(f"  P_height(4e5) vs steady solve (drained limit of the same operator): L1 "
