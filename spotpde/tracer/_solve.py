@@ -158,7 +158,7 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
             explicitly on a small box, the rest stepped at about ``split`` times the
             explicit step; diffusion implicit everywhere, second order), ``"imex"``
             (the same, the fast faces implicit with the hybrid M-matrix operator of
-            :func:`solve_steady`: cheaper, first order along the flow there),
+            ``solve_steady(scheme="hybrid")``: cheaper, first order along the flow there),
             ``"implicit"`` (steady fields only: adaptive TR-BDF2 on the hybrid operator
             everywhere, step sizes set by ``tol``, not by the CFL limit; first order
             along the flow where the cell Peclet number exceeds 2; ``limiter``,
@@ -166,7 +166,8 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
             ``"auto"``: ``"multirate"`` for steady fields when the explicit run would
             take more than ``AUTO_IMEX_STEPS`` steps and fewer than 1 % of the moving
             cells are 4 or more times faster than the rest (``split`` is then at most
-            that ratio), else ``"explicit"``. All are positive and conservative
+            that ratio and at most ``MAX_AUTO_SPLIT``), else ``"explicit"``. All are
+            positive and conservative
             (docs/long_runs.md).
         tol: ``"implicit"``: local error per step, L1 relative to the initial mass, in
             (0, 1).
