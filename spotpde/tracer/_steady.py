@@ -1,4 +1,4 @@
-"""The geometrical propagator by one steady solve (``tracer.t_end = inf``).
+"""The geometrical propagator as a steady state (``tracer.t_end = inf``).
 
 ``G(r) = int_0^inf P(r, t) dt`` (the expected time spent per unit volume, area in 2D;
 units time / d**dims) solves the steady tracer equation
@@ -12,9 +12,15 @@ probability flux), its boundary fluxes the exit probabilities, and ``sum(G) h**d
 the mean exit time (for a normalised ``P0``). Derivations and measurements:
 docs/steady.md.
 
-Discretisation: the finite volumes of the tracer with the same diffusion operator
-(the positive 9-point splitting of the tensor, :mod:`spotpde.tracer._diffusion`) and the same
-boundary faces; the interior advective face value is the hybrid (Spalding 1972) blend
+Default (``scheme`` a reconstruction of :func:`spotpde.tracer.solve`, WENO5): the
+steady state of the time-stepped scheme itself, by Picard iteration on frozen face
+ratios started from the hybrid solution (:mod:`._steady_limited`); this module sets up
+the faces, the diffusion operator and the reachable cells and computes the outputs.
+
+The linear schemes (``scheme="hybrid"``, ``"upwind"``, one solve): the finite volumes of
+the tracer with the same diffusion operator (the positive 9-point splitting of the
+tensor, :mod:`spotpde.tracer._diffusion`) and the same boundary faces; the interior
+advective face value is the hybrid (Spalding 1972) blend
 
     P*_f = P_up + (theta_f / 2) (P_down - P_up),   theta_f = min(1, 2 A_down / (|u_f| h))
 
