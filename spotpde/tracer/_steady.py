@@ -264,7 +264,9 @@ def solve_steady(grid, f, P0, outlet, *, scheme="weno5", permc_spec="MMD_AT_PLUS
         raise NumericalError("tracer (steady): the propagator G is not finite")
     # an M-matrix has a non-negative inverse: negative values are solver round-off
     g_min = float(g.min()) if g.size else 0.0
-    G = _expand(np.maximum(g, 0.0), keep, asm.n, grid.shape)
+    g_full = np.zeros(asm.n)
+    g_full[keep] = np.maximum(g, 0.0)
+    G = g_full.reshape(grid.shape)
 
     def outputs(G):
         Fz = asm.z_fluxes(G)
