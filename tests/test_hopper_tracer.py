@@ -143,8 +143,8 @@ def test_P0_on_inactive_cells_is_refused():
 def test_vertical_hopper_on_cell_faces_equals_the_narrow_box():
     """A hopper of angle 0 whose walls lie on cell faces is a box: the staircase solve
     equals the solve on the box of the orifice's width (steady hybrid and time-stepped
-    donor cell to round-off; WENO5, steady and stepped, to its boundary treatment, zero neighbours instead of
-    the box's one-sided fallback)."""
+    donor cell to round-off; WENO5, steady and stepped, to its boundary treatment, zero
+    neighbours instead of the box's one-sided fallback)."""
     h = 0.5
     wide = Grid(2, (-6.0, 6.0), (0.0, 10.0), h, hopper=Hopper(0.0, 0.0, 2.0))
     box = Grid(2, (-2.0, 2.0), (0.0, 10.0), h)
