@@ -25,12 +25,16 @@ Schemes: ``explicit`` (today's default: WENO5, SSP-RK3, Strang-split implicit di
 * ``--convergence``: a smaller void case (release 20 d up, 30 x 30 d) at h = 0.5, 0.25,
   0.125, both schemes, against explicit WENO5 at h = 0.125 (the finer reference), to
   ``t = --conv-t``: error of the frames, of ``outflow(t)`` and of ``P_height``.
+* ``--orifice-row``: the same smaller void case at h = 0.25: the time error of ``P_height``
+  (against explicit at cfl 0.2 on the same grid) in the orifice row and above, for
+  explicit and multirate at several steps: the error grows like the step (the splitting
+  of the orifice row's stiff diffusion from its outflow), whence ``MAX_AUTO_SPLIT``.
 * ``--flagship``: ``cases/quasi2d_layers.toml`` as it is (t_end = 600, 13 frames), both
   schemes, timed, and their distance (L1 of frames and ``P_height``); ``--flagship-ref``
   adds explicit WENO5 at h = 0.125 as the finer reference.
 
 Run: ``python benchmarks/long_runs.py [--t-cut 20] [--window 2000] [--convergence]
-[--flagship [--flagship-ref]] [--only ...]``.
+[--orifice-row] [--flagship [--flagship-ref]] [--no-void]``.
 """
 
 from __future__ import annotations
@@ -145,7 +149,7 @@ def void(args):
         return
     print(f"  time to 4e5, explicit before (extrapolated) / implicit (run in full): "
           f"{t_exp_old / t_imp:.0f}x   (target >= 10x)")
-    s = tracer.solve_steady(grid, f, P0)
+    s = tracer.solve_steady(grid, f, P0, scheme="hybrid")   # the implicit operator
     hh = grid.spacing ** 2
     ob = ri.outflow_by_boundary
     print(f"  P_height(4e5) vs steady solve (drained limit of the same operator): L1 "
@@ -272,6 +276,41 @@ def accuracy(args):
               + "  ".join(f"{e:.2e}" for e in tim))
 
 
+def orifice_row(args):
+    """The multirate scheme's orifice-row error (docs/long_runs.md): the time error of
+    ``P_height`` against a time-converged run on the same grid (explicit, cfl 0.2), split
+    into the orifice row (and its columns over the point orifice) and the rows above, for
+    explicit and multirate steps of several sizes; with the error per unit step and the
+    two fast rates of the orifice row, the outflow ``|u_z| / h`` and the horizontal
+    diffusion ``2 D_xx / h**2``, times the step."""
+    T = args.conv_t
+    grid, f, P0 = setup(small_void(0.25, T))
+    h, hh = grid.spacing, grid.spacing ** 2
+    ic = grid.shape[1] // 2
+    cols = slice(ic - 3, ic + 3)
+    t_r, ref = timed(lambda: tracer.solve(grid, f, P0, T, 5, cfl=0.2))
+    out = float(np.abs(np.asarray(f["u_z"])[0, cols]).max()) / h
+    dif = 2 * float(np.asarray(f["D_xx"])[0, cols].max()) / hh
+    print(f"orifice row: void model, point orifice, h = {h}, t in [0, {T:g}]; reference "
+          f"explicit cfl 0.2 ({ref.steps} steps, {t_r:.0f} s); orifice row: outflow "
+          f"|u_z|/h <= {out:.2f}, diffusion 2 D_xx/h**2 <= {dif:.1f} per unit time")
+    print("  run                      dt    fast | L1 time error of P_height: all   orifice "
+          "row (6 columns)  rows above | outflow  | row error / dt | dt*outflow dt*diffusion")
+    rows = [("explicit", {}), ("explicit, cfl 0.45", {"cfl": 0.45})] + [
+        (f"multirate {s:g}" + (", cfl 0.45" if c else ""),
+         {"stepping": "multirate", "split": s, **({"cfl": 0.45} if c else {})})
+        for s, c in ((5.0, False), (10.0, False), (10.0, True), (20.0, False), (20.0, True))]
+    for name, kw in rows:
+        r = tracer.solve(grid, f, P0, T, 5, **kw)
+        d = np.abs(r.P_height - ref.P_height) * hh
+        dt = r.options.get("dt", T / r.steps)
+        fast = r.options.get("cells_implicit", 0)
+        print(f"  {name:22s} {dt:6.3f} {fast:5d} | {d.sum():.2e}  {d[0].sum():.2e} "
+              f"({d[0, cols].sum():.2e})  {d[1:].sum():.2e} | "
+              f"{np.abs(r.outflow - ref.outflow).max():.2e} | {d[0].sum() / dt:.3f} | "
+              f"{dt * out:5.2f} {dt * dif:6.1f}")
+
+
 def flagship(args):
     path = pathlib.Path(__file__).resolve().parent.parent / "cases" / "quasi2d_layers.toml"
     raw = tomllib.loads(path.read_text())
@@ -329,6 +368,8 @@ def main():
     ap.add_argument("--accuracy", action="store_true",
                     help="total and time errors of explicit and --multirate-splits")
     ap.add_argument("--conv-t", type=float, default=400.0)
+    ap.add_argument("--orifice-row", action="store_true",
+                    help="time error of P_height in the orifice row against the step size")
     ap.add_argument("--flagship", action="store_true")
     ap.add_argument("--flagship-ref", action="store_true")
     ap.add_argument("--no-void", action="store_true", help="skip the default void section")
@@ -341,6 +382,8 @@ def main():
         convergence(args)
     if args.accuracy:
         accuracy(args)
+    if args.orifice_row:
+        orifice_row(args)
     if args.flagship:
         flagship(args)
 

@@ -7,8 +7,9 @@ orifice, 280 x 320 cells at d/4 (x in [-35, 35], z in [0, 80]). Time stepped to
 
 Prints, measured in the same run:
 
-* ``steady``: ``tracer.solve_steady`` (assembly + SuperLU factorisation + solve), best of
-  ``--repeat``;
+* ``steady``: ``tracer.solve_steady`` (its default, the steady state of the WENO5 scheme:
+  assembly, the Picard iteration's SuperLU factorisations and solves), best of
+  ``--repeat``, and the linear hybrid scheme (one solve) for comparison;
 * ``stepped``: the time-stepped solver (default WENO5, SSP-RK3, implicit diffusion) on the
   same grid and fields cut off at ``--t-cut`` (default 100), its steps and wall time, and
   the time for ``t_end = 4e5`` extrapolated linearly (steady fields: a constant number of
@@ -63,10 +64,11 @@ def flagship():
     t0 = time.perf_counter()
     tw = tracer.solve(grid, f, P0, 1500.0, 2)
     t_w = time.perf_counter() - t0
-    runs = [tw, tracer.solve_steady(grid, f, P0), tracer.solve_steady(grid, f, P0,
-                                                                       scheme="upwind")]
+    runs = [tw] + [tracer.solve_steady(grid, f, P0, scheme=s)
+                   for s in ("hybrid", "upwind", "weno5")]
     print(f"flagship, blob at (1, 20): stepped WENO5 {t_w:.1f} s ({tw.steps} steps, mass "
-          f"left {tw.mass[-1]:.2g}); steady hybrid {runs[1].seconds:.2f} s")
+          f"left {tw.mass[-1]:.2g}); steady hybrid {runs[1].seconds:.2f} s, steady WENO5 "
+          f"{runs[3].seconds:.2f} s ({runs[3].options['iterations']} iterations)")
     h, x = grid.spacing, grid.x
     for z in (2.0, 5.0, 10.0, 15.0):
         k = int(np.argmin(np.abs(grid.z - z)))
@@ -76,9 +78,10 @@ def flagship():
             c = ph.sum() * h
             m = (ph * x).sum() * h / c
             mv.append((m, (ph * x * x).sum() * h / c - m * m))
-        print(f"z = {grid.z[k]:5.2f}: var WENO5 {mv[0][1]:.4f}, hybrid {mv[1][1] / mv[0][1] - 1:+.3f},"
-              f" upwind {mv[2][1] / mv[0][1] - 1:+.3f} (relative); means "
-              f"{mv[0][0]:.4f} {mv[1][0]:.4f} {mv[2][0]:.4f}")
+        print(f"z = {grid.z[k]:5.2f}: var stepped WENO5 {mv[0][1]:.4f}, steady hybrid "
+              f"{mv[1][1] / mv[0][1] - 1:+.3f}, upwind {mv[2][1] / mv[0][1] - 1:+.3f}, WENO5 "
+              f"{mv[3][1] / mv[0][1] - 1:+.3f} (relative); means "
+              + " ".join(f"{m[0]:.4f}" for m in mv))
 
 
 def main():
@@ -100,7 +103,11 @@ def main():
     print(f"void model, point orifice, release at z = 60 d; grid {grid.shape[1]} x "
           f"{grid.shape[0]} cells, h = {grid.spacing} d")
 
+    t_hybrid, _ = best_time(lambda: tracer.solve_steady(grid, fields, P0, scheme="hybrid"),
+                            args.repeat)
     t_steady, res = best_time(lambda: tracer.solve_steady(grid, fields, P0), args.repeat)
+    print(f"steady hybrid (one solve): {t_hybrid:.2f} s; steady WENO5: "
+          f"{res.options['iterations']} iterations, converged {res.options['converged']}")
     ex = res.exit
     print(f"steady   : {t_steady:8.2f} s  (solve {res.options['seconds_solve']:.2f} s, "
           f"{res.options['cells_solved']} cells; exits floor {ex['floor']:.12f} "

@@ -114,7 +114,8 @@ def test_choose_stepping_keeps_short_transient_and_even_runs_explicit():
     multirate only for a long steady run with a few fast cells (the split then at most
     their ratio); explicit modes and default splits pass through."""
     from spotpde.tracer import _advection, _implicit
-    from spotpde.tracer._solve import AUTO_IMEX_STEPS, DEFAULT_SPLIT, choose_stepping
+    from spotpde.tracer._solve import (AUTO_IMEX_STEPS, DEFAULT_SPLIT, MAX_AUTO_SPLIT,
+                                       choose_stepping)
     from test_implicit_tracer import _void
     grid, fields, _ = _void(0.25)
     faces = _advection.face_velocities(fields, grid.walls, np.ones(grid.shape[1:], bool))
@@ -131,6 +132,14 @@ def test_choose_stepping_keeps_short_transient_and_even_runs_explicit():
     assert choose_stepping("auto", None, even, grid.spacing, long)[0] == "explicit"
     assert choose_stepping("multirate", None, faces, grid.spacing, 1) == \
         ("multirate", DEFAULT_SPLIT["multirate"])
+    # auto never goes past the bound of its time error, whatever split asks (one face 100
+    # times faster than the rest: auto_split 50); an explicit multirate request is the user's
+    steep = {k: v.copy() for k, v in even.items()}
+    steep["z"][5, 5] = -100.0
+    assert _implicit.auto_split(steep, grid.spacing) > 40.0
+    assert choose_stepping("auto", 40.0, steep, grid.spacing, long) == \
+        ("multirate", MAX_AUTO_SPLIT)
+    assert choose_stepping("multirate", 40.0, faces, grid.spacing, 1) == ("multirate", 40.0)
     assert choose_stepping("imex", 3.0, faces, grid.spacing, 1) == ("imex", 3.0)
 
 

@@ -114,7 +114,8 @@ def _estimate(case, allow_long: bool, quiet: bool = False, fields=None) -> None:
     elif est is not None:
         _say(f"spotpde: {estimate.describe(est)}")
     elif case.tracer is not None and case.tracer.t_end == float("inf"):
-        _say("spotpde: tracer: t_end = inf: the geometrical propagator by one sparse solve")
+        _say("spotpde: tracer: t_end = inf: the geometrical propagator as the steady state "
+             "of the scheme (a few sparse solves)")
     estimate.refuse_if_long(case, est, allow_long)
 
 

@@ -143,7 +143,7 @@ def case_estimate(case) -> dict | None:
 def fields_estimate(case, fields) -> dict | None:
     """:func:`tracer_steps` for a case whose steady coefficient ``fields`` are known.
 
-    Returns ``None`` without a tracer, for ``tracer.t_end = inf`` (one sparse solve),
+    Returns ``None`` without a tracer, for ``tracer.t_end = inf`` (a steady solve),
     for transient spots (the fields change during the run), and for ``tracer.stepping``
     "imex" and "implicit" (their steps are not the CFL's). ``"auto"`` is estimated as the
     solver will run it (multirate for long runs dominated by a few fast cells).

@@ -198,7 +198,8 @@ def _run(case: Case, progress: Progress | None, open_frames=None,
         # t_end = inf: the geometrical propagator by one steady solve (docs/steady.md)
         stage = _stage(progress, "tracer") or _noop
         stage(0.0)
-        res = tracer.solve_steady(grid, coefficients, P0)
+        res = tracer.solve_steady(grid, coefficients, P0,
+                                  scheme=case.tracer_options.get("limiter", "weno5"))
         stage(1.0)
         out.update(P_height=res.P_height, residence=res.residence)
         steady_attrs = {f"exit_{k}": float(v) for k, v in res.exit.items()}

@@ -5,8 +5,8 @@
 :func:`solve` steps it in time (finite volumes, WENO5-Z / MUSCL advection, positive
 tensor diffusion, SSP Runge-Kutta); :func:`numerical_diffusion` predicts the scheme's
 numerical diffusion and :func:`sde_ensemble` is the grid-free Euler-Maruyama reference.
-:func:`solve_steady` gives the time integral of ``P`` to infinity by one sparse solve
-(the geometrical propagator for ``tracer.t_end = inf``, docs/steady.md).
+:func:`solve_steady` gives the time integral of ``P`` to infinity as the steady state of
+the same scheme (the geometrical propagator for ``tracer.t_end = inf``, docs/steady.md).
 Both work on axisymmetric grids (``Q = 2 pi r P`` stepped with the metric exchange) and
 in hoppers (the staircase ``grid.active`` walled), :mod:`._geometry`.
 ``solve(..., stepping="imex" | "implicit")`` removes the global CFL bottleneck of long

@@ -328,9 +328,10 @@ def solve(core, grid, fields, P, t_end, frames, progress, lim, scheme, diffusion
     return _to_physical(res, w)
 
 
-def solve_steady(core, grid, fields, P, outlet, scheme):
-    """:func:`._steady.solve_steady` (``core``) on an axisymmetric or hopper grid
-    (physical field names): ``-A G_Q = Q0`` on the twin, ``G = G_Q / (2 pi r)``."""
+def solve_steady(core, grid, fields, P, outlet, scheme, **options):
+    """:func:`._steady.solve_steady` (``core``, with the keyword ``options``) on an
+    axisymmetric or hopper grid (physical field names): the steady state of ``Q`` on the
+    twin (this module's operator), ``G = G_Q / (2 pi r)``."""
     geo = _Geometry(grid)
     fq = geo.cartesian_fields(fields, "fields")
     geo.check_P0(P)
@@ -340,6 +341,7 @@ def solve_steady(core, grid, fields, P, outlet, scheme):
         terms, n_bad, L, Bz, axial, _ = geo.diffusion(fc)
         return geo.faces(fc, out), axial, L, Bz, n_bad
 
-    res = core(geo.twin, fq, np.ascontiguousarray(P * w), outlet, scheme=scheme, pieces=pieces)
+    res = core(geo.twin, fq, np.ascontiguousarray(P * w), outlet, scheme=scheme, pieces=pieces,
+               make_op=functools.partial(_GeometryOperator, geo), **options)
     res.options["coordinates"] = grid.coordinates
     return _to_physical(res, w)

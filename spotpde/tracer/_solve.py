@@ -61,6 +61,9 @@ DIFFUSION_MODES = ("auto", "explicit", "implicit")
 AUTO_IMEX_STEPS = 200_000
 #: default ``split`` of each mode: the largest measured to keep the explicit accuracy
 DEFAULT_SPLIT = {"imex": 5.0, "multirate": 10.0}
+#: ``stepping="auto"`` takes multirate at most at this split: the largest at which every
+#: total error stayed at most the explicit scheme's (docs/long_runs.md, the orifice row)
+MAX_AUTO_SPLIT = 10.0
 STEPPING_MODES = ("explicit", "imex", "multirate", "implicit", "auto")
 
 
@@ -155,7 +158,7 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
             explicitly on a small box, the rest stepped at about ``split`` times the
             explicit step; diffusion implicit everywhere, second order), ``"imex"``
             (the same, the fast faces implicit with the hybrid M-matrix operator of
-            :func:`solve_steady`: cheaper, first order along the flow there),
+            ``solve_steady(scheme="hybrid")``: cheaper, first order along the flow there),
             ``"implicit"`` (steady fields only: adaptive TR-BDF2 on the hybrid operator
             everywhere, step sizes set by ``tol``, not by the CFL limit; first order
             along the flow where the cell Peclet number exceeds 2; ``limiter``,
@@ -163,7 +166,8 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
             ``"auto"``: ``"multirate"`` for steady fields when the explicit run would
             take more than ``AUTO_IMEX_STEPS`` steps and fewer than 1 % of the moving
             cells are 4 or more times faster than the rest (``split`` is then at most
-            that ratio), else ``"explicit"``. All are positive and conservative
+            that ratio and at most ``MAX_AUTO_SPLIT``), else ``"explicit"``. All are
+            positive and conservative
             (docs/long_runs.md).
         tol: ``"implicit"``: local error per step, L1 relative to the initial mass, in
             (0, 1).
@@ -248,13 +252,16 @@ def choose_stepping(stepping, split, faces, h, explicit_steps, steady=True):
     mode; ``"auto"`` becomes ``"multirate"`` when the explicit run (``explicit_steps``)
     needs more than ``AUTO_IMEX_STEPS`` steps with steady fields and the fastest 1 % of
     the moving cells are at least ``MIN_SPLIT`` times faster than the rest (``split``
-    then at most that ratio, :func:`._implicit.auto_split`), else ``"explicit"``.
+    then at most that ratio, :func:`._implicit.auto_split`, and at most
+    ``MAX_AUTO_SPLIT`` whatever ``split`` asks), else ``"explicit"``.
     ``faces``: the explicit operator's face velocities; ``h``: the spacing."""
     if split is None:
         split = DEFAULT_SPLIT.get(stepping, DEFAULT_SPLIT["multirate"])
     if stepping == "auto":
-        # multirate where a few fast cells (next to a point orifice) set the explicit step
-        split = min(split, _implicit.auto_split(faces, h)) if steady and \
+        # multirate where a few fast cells (next to a point orifice) set the explicit step;
+        # its time error grows like the step (the orifice row of P_height,
+        # docs/long_runs.md), so the automatic choice never goes past MAX_AUTO_SPLIT
+        split = min(split, MAX_AUTO_SPLIT, _implicit.auto_split(faces, h)) if steady and \
             explicit_steps > AUTO_IMEX_STEPS else 1.0
         stepping = "multirate" if split >= _implicit.MIN_SPLIT else "explicit"
     return stepping, split

@@ -1,4 +1,4 @@
-"""The geometrical propagator by one steady solve (``tracer.t_end = inf``).
+"""The geometrical propagator as a steady state (``tracer.t_end = inf``).
 
 ``G(r) = int_0^inf P(r, t) dt`` (the expected time spent per unit volume, area in 2D;
 units time / d**dims) solves the steady tracer equation
@@ -12,9 +12,15 @@ probability flux), its boundary fluxes the exit probabilities, and ``sum(G) h**d
 the mean exit time (for a normalised ``P0``). Derivations and measurements:
 docs/steady.md.
 
-Discretisation: the finite volumes of the tracer with the same diffusion operator
-(the positive 9-point splitting of the tensor, :mod:`spotpde.tracer._diffusion`) and the same
-boundary faces; the interior advective face value is the hybrid (Spalding 1972) blend
+Default (``scheme`` a reconstruction of :func:`spotpde.tracer.solve`, WENO5): the
+steady state of the time-stepped scheme itself, by Picard iteration on frozen face
+ratios started from the hybrid solution (:mod:`._steady_limited`); this module sets up
+the faces, the diffusion operator and the reachable cells and computes the outputs.
+
+The linear schemes (``scheme="hybrid"``, ``"upwind"``, one solve): the finite volumes of
+the tracer with the same diffusion operator (the positive 9-point splitting of the
+tensor, :mod:`spotpde.tracer._diffusion`) and the same boundary faces; the interior
+advective face value is the hybrid (Spalding 1972) blend
 
     P*_f = P_up + (theta_f / 2) (P_down - P_up),   theta_f = min(1, 2 A_down / (|u_f| h))
 
@@ -33,14 +39,17 @@ incomplete LU (``spilu``), falling back to SuperLU if it does not reach a residu
 
 from __future__ import annotations
 
+import functools
 import time
+import warnings
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
-from . import _advection, _diffusion
+from . import _advection, _diffusion, _geometry, _steady_limited
+from ._operator import _check_fields, _Operator
 from ..errors import NumericalError
 
 _AXES = {2: ("z", "x"), 3: ("z", "y", "x")}
@@ -113,31 +122,41 @@ class _Assembly:
                 wR=(1.0 - w_L).ravel(), theta=theta,
                 first=idx[sl(0, 1)].ravel(), last=idx[sl(nax - 1, nax)].ravel()))
 
+    def set_ratios(self, ratios):
+        """Make every interior face flux ``u_f r_f G_up`` (the frozen limited scheme of
+        :mod:`._steady_limited`): ``ratios`` holds ``r_f`` per axis, shaped as the
+        interior faces."""
+        for a, r in zip(self.axes, ratios):
+            lower = a["ui"] > 0.0
+            r = np.ravel(r)
+            a["wL"] = np.where(lower, r, 0.0)
+            a["wR"] = np.where(lower, 0.0, r)
+
     def matrix(self):
         """Sparse advective operator ``A_adv`` (``dG/dt = A_adv G``)."""
         ih = 1.0 / self.h
+        n = self.n
         rows, cols, vals = [], [], []
-        diag = np.zeros(self.n)
+        diag = np.zeros(n)
         for a in self.axes:
             lo, hi = a["lower"], a["upper"]
             cL = a["ui"] * a["wL"] * ih
             cR = a["ui"] * a["wR"] * ih
             # F = u (w_L G_lo + w_R G_hi) leaves `lo`, enters `hi`
-            np.add.at(diag, lo, -cL)
-            np.add.at(diag, hi, cR)
+            diag += np.bincount(hi, cR, n) - np.bincount(lo, cL, n)
             rows += [lo, hi]
             cols += [hi, lo]
             vals += [-cR, cL]
             uf = a["uf"]
             # boundary faces: outflow with the boundary cell's value
-            np.add.at(diag, a["first"], uf[a["sl"](0, 1)].ravel() * ih)
-            np.add.at(diag, a["last"], -uf[a["sl"](a["nax"], a["nax"] + 1)].ravel() * ih)
-        rows.append(np.arange(self.n))
-        cols.append(np.arange(self.n))
+            diag += (np.bincount(a["first"], uf[a["sl"](0, 1)].ravel() * ih, n)
+                     - np.bincount(a["last"], uf[a["sl"](a["nax"], a["nax"] + 1)].ravel() * ih, n))
+        rows.append(np.arange(n))
+        cols.append(np.arange(n))
         vals.append(diag)
         return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows),
                                                      np.concatenate(cols))),
-                             shape=(self.n, self.n))
+                             shape=(n, n))
 
     def z_fluxes(self, G):
         """Upward advective flux through every z face, ``(nz+1, ...)``."""
@@ -185,46 +204,44 @@ def _reachable(M, seeds):
     return keep[:n]
 
 
-def _krylov(M, b, rtol=1e-12):
-    """GMRES preconditioned by an incomplete LU (``spilu``, drop 1e-4, fill 10); returns
-    ``(None, reason)`` when it fails, so that the caller falls back to a direct solve."""
-    try:
-        ilu = spla.spilu(M, drop_tol=1e-4, fill_factor=10)
-    except RuntimeError:
-        return None, "spilu failed"
-    pre = spla.LinearOperator(M.shape, ilu.solve)
-    g, info = spla.gmres(M, b, M=pre, rtol=rtol, atol=0.0, restart=100, maxiter=50)
-    res = float(np.abs(M @ g - b).sum()) / max(float(np.abs(b).sum()), 1e-300)
-    if info != 0 or not np.all(np.isfinite(g)) or res > 1e-11:
-        return None, "gmres failed"
-    return g, "gmres+spilu"
+def _cartesian_pieces(grid, f, outlet):
+    """Face velocities, axial exchange coefficients, diffusion operator, its vertical flux
+    map and the count of non-dominant cells of a Cartesian box."""
+    h = grid.spacing
+    faces = _advection.face_velocities(f, grid.walls, outlet)
+    terms, n_bad = _diffusion.split_tensor(f, grid.dims)
+    axial = {}
+    for name in _AXES[grid.dims]:
+        off = tuple(1 if a == name else 0 for a in _AXES[grid.dims])
+        axial[name] = next((A for o, A in terms if o == off), np.zeros(grid.shape))
+    L = _diffusion.operator(terms, grid.shape, h)
+    Bz = _diffusion.vertical_flux_operator(terms, grid.shape, h) if terms else None
+    return faces, axial, L, Bz, n_bad
 
 
-def solve_steady(grid, f, P0, outlet, *, scheme="hybrid", permc_spec="MMD_AT_PLUS_A",
-                 pieces=None):
+def _singular():
+    return NumericalError("tracer (steady): singular steady problem: part of the region "
+                          "the tracer reaches has no way out (closed walls and no outlet?)")
+
+
+def solve_steady(grid, f, P0, outlet, *, scheme="weno5", permc_spec="MMD_AT_PLUS_A",
+                 pieces=None, make_op=_Operator, tol=_steady_limited.TOL,
+                 max_iter=_steady_limited.MAX_ITER):
     """Core of :func:`spotpde.tracer.solve_steady` (inputs already checked).
 
     ``pieces(f, outlet) -> (faces, axial, L, Bz, n_bad)`` replaces the Cartesian face
     velocities, axial coefficients, diffusion operator and its vertical flux map
-    (axisymmetric metric and hopper walls, :mod:`._geometry`).
+    (axisymmetric metric and hopper walls, :mod:`._geometry`), ``make_op`` the
+    time-stepped operator whose right-hand side a limited scheme's steady state solves
+    (the signature of :class:`._operator._Operator`).
     """
     t0 = time.perf_counter()
-    h = grid.spacing
     hv = grid.cell_volume
-    if pieces is None:
-        faces = _advection.face_velocities(f, grid.walls, outlet)
-        terms, n_bad = _diffusion.split_tensor(f, grid.dims)
-        axial = {}
-        for name in _AXES[grid.dims]:
-            off = tuple(1 if a == name else 0 for a in _AXES[grid.dims])
-            axial[name] = next((A for o, A in terms if o == off), np.zeros(grid.shape))
-        L = _diffusion.operator(terms, grid.shape, h)
-        Bz = _diffusion.vertical_flux_operator(terms, grid.shape, h) if terms else None
-    else:
-        faces, axial, L, Bz, n_bad = pieces(f, outlet)
-    asm = _Assembly(grid, faces, axial, scheme)
-    A = asm.matrix() + L
-    M_full = (-A).tocsr()
+    faces, axial, L, Bz, n_bad = (pieces or functools.partial(_cartesian_pieces, grid))(
+        f, outlet)
+    limited = scheme not in LINEAR_SCHEMES
+    asm = _Assembly(grid, faces, axial, "hybrid" if limited else scheme)
+    M_full = (-(asm.matrix() + L)).tocsr()
     b_full = np.ascontiguousarray(P0, dtype=float).ravel()
     mass0 = float(b_full.sum()) * hv
     # cells the tracer can reach from the support of P0 (edges j -> i where A_ij != 0);
@@ -238,63 +255,75 @@ def solve_steady(grid, f, P0, outlet, *, scheme="hybrid", permc_spec="MMD_AT_PLU
     keep &= ~traps
     M = M_full[keep][:, keep].tocsc()
     t1 = time.perf_counter()
-    b = b_full[keep]
-    g, solver = None, f"splu({permc_spec})"
-    if grid.dims == 3:
-        # 3D: LU fill grows like n**(4/3) (96,000 cells: 36 s with MMD_AT_PLUS_A, 196 s
-        # with COLAMD); incomplete LU + GMRES took 6.2 s to a residual of 2e-12
-        g, solver = _krylov(M, b)
-    if g is None:
-        try:
-            lu = spla.splu(M, permc_spec=permc_spec)
-        except RuntimeError:
-            raise NumericalError("tracer (steady): singular steady problem: part of the "
-                                 "region the tracer reaches has no way out (closed walls "
-                                 "and no outlet?)") from None
-        g = lu.solve(b)
-        # one step of iterative refinement (the exit probabilities are checked to 1e-10)
-        g += lu.solve(b - M @ g)
-        solver = f"splu({permc_spec})"
-    t2 = time.perf_counter()
+    solver = _steady_limited.LinearSolver(grid.dims, permc_spec)
+    try:
+        g = solver.solve(M, b_full[keep])
+    except RuntimeError:
+        raise _singular() from None
     if not np.all(np.isfinite(g)):
         raise NumericalError("tracer (steady): the propagator G is not finite")
     # an M-matrix has a non-negative inverse: negative values are solver round-off
     g_min = float(g.min()) if g.size else 0.0
-    g = np.maximum(g, 0.0)
     g_full = np.zeros(asm.n)
-    g_full[keep] = g
+    g_full[keep] = np.maximum(g, 0.0)
     G = g_full.reshape(grid.shape)
-    residual = float(np.abs((M_full @ g_full - b_full)[keep]).max()) / max(
-        float(b_full.max()), 1e-300)
+
+    def outputs(G):
+        Fz = asm.z_fluxes(G)
+        if Bz is not None:
+            Fz = Fz + (Bz @ G.ravel()).reshape(Fz.shape)
+        return -Fz, asm.exits(G)
+
+    info = {}
+    if limited:
+        try:
+            G, info = _steady_limited.picard(
+                grid, f, outlet, _advection.LIMITERS[scheme].code, asm, L, keep, b_full, G,
+                solver, outputs, make_op=make_op, tol=tol, max_iter=max_iter)
+        except RuntimeError:
+            raise _singular() from None
+        g_min = info.pop("min_before_clip")
+        M_full = (-(asm.matrix() + L)).tocsr()     # the last iterate's frozen scheme
+        residual = info.pop("residual_max")
+    t2 = time.perf_counter()
+    g_full = G.ravel()
+    if not limited:
+        residual = float(np.abs((M_full @ g_full - b_full)[keep]).max()) / max(
+            float(b_full.max()), 1e-300)
     trapped = float(-(M_full[traps] @ g_full).sum()) * hv if traps.any() else 0.0
-    Fz = asm.z_fluxes(G)
-    if Bz is not None:
-        Fz = Fz + (Bz @ g_full).reshape(Fz.shape)
-    down = -Fz
-    ex = asm.exits(G)
+    down, ex = outputs(G)
     ex["trapped"] = trapped
+    options = {"scheme": scheme, "linear_solver": solver.name,
+               "factorisations": solver.factorisations,
+               "cells_solved": int(keep.sum()), "cells_trapped": int(traps.sum()),
+               "n_bad": n_bad, "min_before_clip": g_min, "seconds_assembly": t1 - t0,
+               "seconds_solve": t2 - t1, **info}
+    if not limited:
+        options["central_fraction"] = {a["name"]: float(np.mean(a["theta"] >= 1.0))
+                                       for a in asm.axes}
     return SteadyResult(
         residence=G, P_height=0.5 * (down[:-1] + down[1:]), P_height_faces=down, exit=ex,
         mean_exit_time=float(g_full.sum()) * hv / max(mass0, 1e-300), mass0=mass0,
-        residual=residual, seconds=time.perf_counter() - t0,
-        options={"scheme": scheme, "linear_solver": solver,
-                 "cells_solved": int(keep.sum()), "cells_trapped": int(traps.sum()),
-                 "n_bad": n_bad, "central_fraction": {a["name"]: float(np.mean(a["theta"] >= 1.0))
-                                      for a in asm.axes},
-                 "min_before_clip": g_min, "seconds_assembly": t1 - t0,
-                 "seconds_solve": t2 - t1})
+        residual=residual, seconds=time.perf_counter() - t0, options=options)
 
 
-STEADY_SCHEMES = ("hybrid", "upwind")
+#: the linear M-matrix schemes (one solve); every other name is a time-stepped
+#: reconstruction (:data:`._advection.LIMITERS`) solved by :mod:`._steady_limited`
+LINEAR_SCHEMES = ("hybrid", "upwind")
+STEADY_SCHEMES = tuple(k for k in _advection.LIMITERS if k not in LINEAR_SCHEMES) + LINEAR_SCHEMES
 
 
-def solve_steady_public(grid, fields, P0, *, scheme: str = "hybrid",
-                        outlet: np.ndarray | None = None) -> SteadyResult:
-    """The geometrical propagator ``G = int_0^inf P dt`` by one sparse solve.
+def solve_steady_public(grid, fields, P0, *, scheme: str = "weno5",
+                        outlet: np.ndarray | None = None, tol: float = _steady_limited.TOL,
+                        max_iter: int = _steady_limited.MAX_ITER,
+                        threads: int | None = None) -> SteadyResult:
+    """The geometrical propagator ``G = int_0^inf P dt`` of the time-stepped scheme.
 
-    Solves ``-L G = P0`` (``L`` the tracer's Fokker-Planck operator, the boundaries of
-    :func:`spotpde.tracer.solve`) with an M-matrix discretisation (module docstring):
-    ``G >= 0``, exit probabilities summing to the initial mass.
+    Solves ``R(G) + P0 = 0``, ``R`` the right-hand side of :func:`spotpde.tracer.solve`
+    with the same reconstruction, diffusion splitting and boundaries (docs/steady.md):
+    by Picard iteration on the frozen face ratios for a limited reconstruction
+    (:mod:`._steady_limited`), by one sparse solve for the linear schemes. Every result
+    has ``G >= 0`` and exit probabilities summing to the initial mass.
 
     Args:
         grid: the grid (array order ``(z, x)`` / ``(z, y, x)``; axisymmetric ``(z, r)``
@@ -306,40 +335,65 @@ def solve_steady_public(grid, fields, P0, *, scheme: str = "hybrid",
             ``D_xy``, ``D_yz``; d**2 per unit time; axisymmetric ``u_r``, ``u_z``,
             ``D_rr``, ``D_rz``, ``D_zz``), as for :func:`spotpde.tracer.solve`.
         P0: grid-shaped initial density, 1/d**dims, >= 0 (not normalised here).
-        scheme: advective face value: ``"hybrid"`` (central where the cell Peclet
-            number is <= 2, upwind elsewhere; default) or ``"upwind"``.
+        scheme: advective face value: a reconstruction of :func:`spotpde.tracer.solve`
+            (``"weno5"``, the default and the time-stepped default, ``"koren"``,
+            ``"vanleer"``, ``"mc"``, ``"minmod"``; ``"upwind"`` is linear), or
+            ``"hybrid"`` (central where the cell Peclet number is <= 2, upwind
+            elsewhere: one solve, first order along an advection-dominated flow).
         outlet: optional boolean floor mask, as for :func:`spotpde.tracer.solve`.
+        tol: limited schemes: the iteration stops when ``P_height`` changes by less than
+            ``tol`` of its maximum (plus the change of the exit probabilities); in (0, 1).
+        max_iter: limited schemes: iterations at most (>= 1); a run that stops there
+            warns (``RuntimeWarning``) and reports ``options["converged"] = False``.
+        threads: numba threads of the residual kernel; default 1 below 65536 cells,
+            numba's default above (as :func:`spotpde.tracer.solve`).
 
     Returns:
         :class:`SteadyResult`.
 
     Raises:
         TypeError: ``fields`` is not a dict (time-dependent fields have no steady state).
-        ValueError: bad ``P0``, ``scheme``, ``outlet`` or fields (the message names it).
+        ValueError: bad ``P0``, ``scheme``, ``outlet``, ``tol``, ``max_iter`` or fields
+            (the message names it).
         NumericalError: the region the tracer reaches has no way out.
     """
-    from ._operator import _check_fields
     if callable(fields) or not hasattr(fields, "keys"):
-        raise TypeError("solve_steady: fields must be a dict of steady arrays (time-"
-                        f"dependent fields have no steady propagator), got "
-                        f"{type(fields).__name__}")
+        raise TypeError("fields: must be a dict of steady arrays (time-dependent fields "
+                        f"have no steady propagator), got {type(fields).__name__}")
     if scheme not in STEADY_SCHEMES:
-        raise ValueError(f"solve_steady: scheme must be one of {', '.join(STEADY_SCHEMES)}, "
-                         f"got {scheme!r}")
+        raise ValueError(f"scheme: must be one of {', '.join(STEADY_SCHEMES)}, got {scheme!r}")
+    if not (isinstance(tol, (int, float)) and 0 < tol < 1):
+        raise ValueError(f"tol: must be a number in (0, 1), got {tol!r}")
+    if not (isinstance(max_iter, (int, np.integer)) and max_iter >= 1):
+        raise ValueError(f"max_iter: must be an integer >= 1, got {max_iter!r}")
     P = np.array(P0, dtype=float)
     if P.shape != grid.shape:
-        raise ValueError(f"solve_steady: P0 has shape {P.shape}, the grid {grid.shape}")
+        raise ValueError(f"P0: shape {P.shape} does not match the grid {grid.shape}")
     if not np.all(np.isfinite(P)) or np.any(P < 0) or not np.any(P > 0):
-        raise ValueError("solve_steady: P0 must be finite, >= 0 and not all zero")
+        raise ValueError("P0: must be finite, >= 0 and not all zero")
     if outlet is None:
         outlet = np.ones(grid.shape[1:], dtype=bool)
     else:
         outlet = np.asarray(outlet, dtype=bool)
         if outlet.shape != grid.shape[1:]:
-            raise ValueError(f"solve_steady: outlet has shape {outlet.shape}, the floor "
+            raise ValueError(f"outlet: shape {outlet.shape} does not match the floor "
                              f"{grid.shape[1:]}")
-    if grid.axisymmetric or grid.hopper is not None:   # Q = 2 pi r P on the Cartesian twin
-        from . import _geometry
-        return _geometry.solve_steady(solve_steady, grid, fields, P, outlet, scheme)
-    f = _check_fields(grid, fields, "fields")
-    return solve_steady(grid, f, P, outlet, scheme=scheme)
+    if threads is None:
+        threads = 1 if grid.size < 65536 else numba.config.NUMBA_NUM_THREADS
+    saved = numba.get_num_threads()
+    numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
+    try:
+        if _geometry.special(grid):      # Q = 2 pi r P on the Cartesian twin
+            res = _geometry.solve_steady(solve_steady, grid, fields, P, outlet, scheme,
+                                         tol=tol, max_iter=max_iter)
+        else:
+            res = solve_steady(grid, _check_fields(grid, fields, "fields"), P, outlet,
+                               scheme=scheme, tol=tol, max_iter=max_iter)
+    finally:
+        numba.set_num_threads(saved)
+    if res.options.get("converged") is False:
+        warnings.warn(f"tracer (steady): the {scheme} iteration stopped after {max_iter} "
+                      f"iterations with P_height still changing by "
+                      f"{res.options['change']:.2g} (tol {tol:g})", RuntimeWarning,
+                      stacklevel=2)
+    return res
