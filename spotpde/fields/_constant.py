@@ -504,19 +504,19 @@ def add_requests(grid: Grid, fields: dict, requests, conv, D_s: Mapping, T: Mapp
         return
     hd = grid.spacing**grid.dims
     c2 = conv.use[2][1]
-    parts = _strips.box_convolutions(requests, conv.stencils, grid.shape)
-    for name, pieces in parts.items():
+    requests = list(requests)
+    for name, dst, values in _strips.box_convolutions(requests, conv.stencils, grid.shape):
+        part = [(dst, values)]
         if name != "D":
-            _strips.add(fields[name[0]], pieces, name[1])
-    D_parts = parts.get("D", [])
-    for key, t in T.items():
-        if not _is_zero(t):
-            _strips.add(fields[key], D_parts, float(t) * c2 * hd)
-    if passage_drift and D_parts:
-        for key, comp in (("D_xx", "x"), ("D_zz", "z")):
+            _strips.add(fields[name[0]], part, name[1])
+            continue
+        for key, t in T.items():
+            if not _is_zero(t):
+                _strips.add(fields[key], part, float(t) * c2 * hd)
+        for key, comp in (("D_xx", "x"), ("D_zz", "z")) if passage_drift else ():
             t, d = (0.0 if _is_zero(m[key]) else float(m[key]) for m in (T, D_s))
             if t != d:
-                _strips.add_derivative(fields[f"u_{comp}"], D_parts, grid.spacing,
+                _strips.add_derivative(fields[f"u_{comp}"], part, grid.spacing,
                                        grid.axes.index(comp), (t - d) * c2 * hd)
 
 

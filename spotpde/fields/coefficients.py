@@ -63,6 +63,7 @@ __all__ = [
     "incompressibility_defect",
     "velocity_correlation",
     "pair_diffusivity",
+    "release_caches",
     "DRIFT_KEYS",
     "DIFFUSIVITY_KEYS",
 ]
@@ -461,6 +462,20 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
         fields[f"D_{a}{a}"] = clip_roundoff(fields[f"D_{a}{a}"], inplace=True)
     order = DRIFT_KEYS[grid.dims] + DIFFUSIVITY_KEYS[grid.dims]
     return {k: fields[k] for k in order}
+
+
+def release_caches() -> None:
+    """Free what the convolutions of :func:`particle_fields` keep for the next call of the
+    same shape: FFT plans and their buffers, kernel spectra, the wall strips' spectra.
+
+    For a grid of millions of cells that is several hundred MB (a 3D slab of 2.6 M cells:
+    about 8 grid arrays) held through the tracer stage, which needs none of it; the next
+    call rebuilds them (milliseconds: the plans are estimated, not measured).
+    """
+    from . import _strips, convolution
+
+    convolution.clear_caches()
+    _strips.clear_spectra()
 
 
 # -- diagnostics ------------------------------------------------------------------------------

@@ -40,7 +40,8 @@ import scipy.fft
 
 from . import _fft
 
-__all__ = ["convolve", "convolve_padded", "Convolver", "MODES", "BACKENDS", "fft_shape"]
+__all__ = ["convolve", "convolve_padded", "Convolver", "MODES", "BACKENDS", "fft_shape",
+           "clear_caches"]
 
 MODES = ("linear", "periodic")
 BACKENDS = _fft.BACKENDS
@@ -271,6 +272,14 @@ def _get_convolver(stencil: np.ndarray, shape, mode: str, backend: str) -> Convo
         while len(_cache) > _CACHE_SIZE:
             _cache.popitem(last=False)
     return conv
+
+
+def clear_caches() -> None:
+    """Drop the cached convolvers (kernel spectra) and pyFFTW plans (their buffers): about
+    three padded grid arrays for each shape used; the next call rebuilds what it needs."""
+    with _cache_lock:
+        _cache.clear()
+    _fft.clear_plans()
 
 
 def convolve(fields, stencil, mode: str = "linear", backend: str | None = None):
