@@ -174,11 +174,15 @@ def constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, lam
     # the grid's interior); w**2 = c w (uniform kernel) reuses the one transform
     from .convolution import convolve
 
-    c1 = convolve(rho_p, conv.stencils[1], mode="linear")
+    # float64 arrays whatever the transforms' precision (single for large 3D grids)
+    c1 = np.asarray(convolve(rho_p, conv.stencils[1], mode="linear",
+                             precision=conv.precision), dtype=float)
     p2, c2 = conv.use[2]
     c2_array = None
     if need_D:
-        c2_array = c1 if p2 == 1 else convolve(rho_p, conv.stencils[2], mode="linear")
+        c2_array = c1 if p2 == 1 else np.asarray(
+            convolve(rho_p, conv.stencils[2], mode="linear", precision=conv.precision),
+            dtype=float)
     fields = {f"u_{a}": None for a in comps}      # None: zero so far
 
     def accumulate(key, value):
