@@ -60,8 +60,9 @@ _ALIASES = {
     "mcstats": "montecarlo.mcstats",
 }
 _SUBPACKAGES = ("grid", "parameters", "errors", "density", "fields", "tracer", "pair",
-                "montecarlo", "app", "analysis")
-_FUNCTIONS = {"load_case": "app.cases", "run": "app.pipeline", "sweep_case": "app.sweep"}
+                "montecarlo", "app", "analysis", "tracks", "observables", "calibration")
+_FUNCTIONS = {"load_case": "app.cases", "run": "app.pipeline", "sweep_case": "app.sweep",
+              "fit": "calibration"}
 
 __all__ = ["__version__", "CaseError", "NumericalError", *_SUBPACKAGES, *_ALIASES,
            *_FUNCTIONS]

@@ -52,9 +52,12 @@ class KinematicComparison:
         z: compared heights (cell centres), d.
         speed_l2: ``||v_spot - v_kin|| / ||v_kin||`` across each height, with
             ``v_spot = -u_f,z`` the spot model's mean downward speed.
-        width2_spot, width2_kin: squared widths ``s**2`` of Gaussian fits
+        width2_spot, width2_kin: squared widths ``2 s`` of the Kinematic Model with the
+            case's orifice and walls fitted to each profile (``spotpde.kinematic.fit_profile``;
+            3D: of Gaussian fits)
             ``A exp(-(x - x0)**2 / (2 s**2))`` to the two speed profiles, d**2.
-        b_speed_spot, b_speed_kin: effective ``b = (1/2) d(s**2)/dz`` of those fits, d.
+        b_speed_spot, b_speed_kin: effective ``b = (1/2) d(width2)/dz`` of those fits, d
+            (the Kinematic Model's own reads its ``b``).
         b_horizontal: least-squares ``b_h`` in ``u_f,x = b_h d_x v_spot``, d (the
             kinematic model has ``b_h = b``).
         horizontal_l2: ``||u_f,x - b d_x v_kin|| / ||b d_x v_kin||`` across each height.
@@ -264,8 +267,15 @@ def compare_with_kinematic(case_or_parts, rule: float | None = None, *, z_min: f
     speed_l2 = _norm_rows(v_spot - v_kin) / _norm_rows(v_kin)
     horizontal_l2 = _norm_rows(ux_spot - ux_kin) / _norm_rows(ux_kin)
     b_h = np.sum(ux_spot * dx_v_spot, axis=-1) / np.sum(dx_v_spot**2, axis=-1)
-    w2_spot = np.array([gaussian_width2(grid.x[cols], p) for p in v_spot])
-    w2_kin = np.array([gaussian_width2(grid.x[cols], p) for p in v_kin])
+    # s(z) of the Kinematic Model with this orifice and these walls fitted to each profile
+    # (a Gaussian's width is biased by the walls and the slot); b = ds/dz
+    if grid.dims == 2:
+        walled = [[kinematic.fit_profile(grid.x[cols], p, orifice, grid.x_range, grid.walls)[0]
+                   for p in prof] for prof in (v_spot, v_kin)]
+        w2_spot, w2_kin = (2.0 * np.asarray(sv) for sv in walled)
+    else:
+        w2_spot = np.array([gaussian_width2(grid.x[cols], p) for p in v_spot])
+        w2_kin = np.array([gaussian_width2(grid.x[cols], p) for p in v_kin])
     zc = grid.z[rows]
     b_spot = 0.5 * np.gradient(w2_spot, zc)
     b_kin = 0.5 * np.gradient(w2_kin, zc)

@@ -400,13 +400,22 @@ class _Validator:
                                         limit=MAX_FRAMES)
         return out
 
+    def _rule(self, value):
+        """``kernel.rule``: lam in (0, 1], or ``"kinematic"`` (``1/2 + V2 / (2 V1)``)."""
+        if value == "kinematic":
+            return value
+        if isinstance(value, str):
+            self.bad("kernel.rule", 'must be a number in (0, 1] or "kinematic"', value)
+            return None
+        return self.number("kernel.rule", value, gt=0, le=1)
+
     def _kernel(self, t):
         out = {
             "shape": self.choice("kernel.shape", t["shape"], KERNEL_SHAPES),
             "size": self.number("kernel.size", t["size"], gt=0),
             "volume": self.number("kernel.volume", t["volume"], gt=0),
             "aspect": self.number("kernel.aspect", t["aspect"], gt=0, le=1000),
-            "rule": self.number("kernel.rule", t["rule"], gt=0, le=1),
+            "rule": self._rule(t["rule"]),
             "walls": self.choice("kernel.walls", t["walls"], KERNEL_WALLS),
             "diffusivity": self.choice("kernel.diffusivity", t["diffusivity"], DIFFUSIVITIES),
         }

@@ -119,8 +119,14 @@ class Case:
 
     @property
     def rule(self) -> float:
-        """lam: ``kernel.rule``, or 1 for the void model."""
-        return 1.0 if self.model == "void" else float(self.data["kernel"]["rule"])
+        """lam: ``kernel.rule``, or 1 for the void model; ``kernel.rule = "kinematic"`` is
+        ``1/2 + V2 / (2 V1)``, the rule whose mean flow is exactly kinematic."""
+        if self.model == "void":
+            return 1.0
+        rule = self.data["kernel"]["rule"]
+        if rule == "kinematic":
+            return 0.5 + 0.5 * float(self.kernel.V2) / float(self.kernel.V1)
+        return float(rule)
 
     @property
     def kernel_walls(self) -> str:

@@ -1,4 +1,5 @@
-"""The ``spotpde`` command line: ``run``, ``check``, ``plot``, ``sweep``, ``compare``, ``--version``.
+"""The ``spotpde`` command line: ``run``, ``check``, ``plot``, ``sweep``, ``compare``, ``fit``
+(in ``_cli_fit``), ``--version``.
 
 Exit status (docs/interface.md): 0 done; 2 invalid case, unreadable input or an output
 path that cannot or must not be written (one line per problem on standard error, no
@@ -17,6 +18,7 @@ import time
 from pathlib import Path
 
 from .._version import __version__
+from . import _cli_fit
 from ._outputs import FIGURE_FORMATS, Terminated, handle_termination, output_problem
 from ..errors import CaseError, NumericalError, WriteError
 
@@ -356,7 +358,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="spotpde",
         description="Continuum spot model of dense granular drainage (Bazant 2004).")
     p.add_argument("--version", action="version", version=f"spotpde {__version__}")
-    sub = p.add_subparsers(dest="command", metavar="{run,check,plot,sweep,compare}")
+    sub = p.add_subparsers(dest="command", metavar="{run,check,plot,sweep,compare,fit}")
     sub.required = True
     r = sub.add_parser("run", help="run a case and write one netCDF file")
     r.add_argument("case", metavar="CASE.toml")
@@ -394,6 +396,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="rules lam to compare (default: 0.5 1)")
     k.add_argument("-o", "--output", metavar="FIG.png", help="write the comparison figure")
     k.set_defaults(func=cmd_compare)
+    _cli_fit.add_parser(sub, _check_outputs, FIGURE_FORMATS)
     return p
 
 

@@ -27,7 +27,7 @@ from ..grid import Grid
 from ..parameters import Orifice, Spots
 from . import _geometry, spot_density
 
-__all__ = ["point_source", "speed", "velocity", "streamlines"]
+__all__ = ["point_source", "slot_profile", "fit_profile", "speed", "velocity", "streamlines"]
 
 
 def point_source(x, z, b, dims: int = 2):
@@ -64,6 +64,111 @@ def point_source(x, z, b, dims: int = 2):
     out[pos] = g / np.sqrt(np.pi * four_bz) if dims == 2 else g / (np.pi * four_bz)
     out[(z == 0) & (x == 0)] = np.inf
     return float(out) if out.ndim == 0 else out
+
+
+def slot_profile(x, s, orifice: Orifice, x_range: tuple[float, float] | None = None,
+                 walls: str = "reflecting"):
+    """Closed-form downward speed of the 2D Kinematic Model with the orifice's profile.
+
+    With constant ``b`` the solution depends on height only through ``s = b z`` (d**2):
+    ``v(x, s)`` solves ``dv/ds = d2v/dx2`` from the orifice profile ``p(x)`` (unit
+    integral). Between reflecting walls ``x_range = (x0, x1)``, ``L = x1 - x0``, it is the
+    cosine series (exact; terms kept while ``exp(-k_n^2 s) > 1e-13``)::
+
+        v = 1/L + (2/L) sum_n p^_n cos(k_n (x - x0)) exp(-k_n^2 s),   k_n = n pi / L
+
+    with ``p^_n = int p(x') cos(k_n (x' - x0)) dx'`` (a uniform slot
+    ``[a, c]``: ``(sin k_n (c - x0) - sin k_n (a - x0)) / (k_n (c - a))``; a point:
+    ``cos k_n (x_c - x0)``; a Gaussian of standard deviation ``W/2``: its free-space
+    transform ``cos k_n (x_c - x0) exp(-k_n^2 W^2 / 8)``, exact while it stays inside the
+    walls). Open walls (or ``x_range = None``): the free-space convolution of ``p`` with
+    the heat kernel of variance ``2 s`` (erf differences for a slot).
+
+    Args:
+        x: horizontal positions in d (array).
+        s: ``b z`` in d**2, > 0 (float, or an array broadcasting with ``x``).
+        orifice: the orifice (``x``, ``width``, ``profile``; the rate is ignored).
+        x_range: the silo's side walls in d.
+        walls: ``"reflecting"`` or ``"open"``.
+
+    Returns:
+        ``v`` in 1/d (unit flux through every height), the broadcast shape of ``x`` and ``s``.
+    """
+    from scipy.special import erf
+
+    x = np.asarray(x, dtype=float)
+    s = np.asarray(s, dtype=float)
+    if not np.all(s > 0):
+        raise ValueError(f"s: must be > 0 (b z in d**2), got {s.min() if s.size else s!r}")
+    if walls not in ("reflecting", "open"):
+        raise ValueError(f'walls: must be "reflecting" or "open", got {walls!r}')
+    xc, width = float(orifice.x), float(orifice.width)
+    slot = width > 0 and orifice.profile == "uniform"
+    sig2 = (0.5 * width) ** 2 if (width > 0 and not slot) else 0.0
+    if walls == "open" or x_range is None:
+        var = 2.0 * s + sig2
+        if slot:
+            a, c = xc - 0.5 * width, xc + 0.5 * width
+            root = np.sqrt(2.0 * var)
+            return 0.5 * (erf((x - a) / root) - erf((x - c) / root)) / width
+        return np.exp(-(x - xc) ** 2 / (2.0 * var)) / np.sqrt(2.0 * np.pi * var)
+    x0, x1 = (float(v) for v in x_range)
+    L = x1 - x0
+    s_min = float(np.min(s)) + 0.5 * sig2
+    n_max = int(np.ceil(L / np.pi * np.sqrt(30.0 / max(s_min, 1e-12)))) + 1
+    k = np.arange(1, n_max + 1) * (np.pi / L)
+    if slot:
+        a, c = xc - 0.5 * width, xc + 0.5 * width
+        coef = (np.sin(k * (c - x0)) - np.sin(k * (a - x0))) / (k * width)
+    else:
+        coef = np.cos(k * (xc - x0)) * np.exp(-0.5 * k**2 * sig2)
+    xs, ss = np.broadcast_arrays(x, s)
+    terms = coef * np.cos(np.multiply.outer(xs - x0, k)) * np.exp(-np.multiply.outer(ss, k**2))
+    return 1.0 / L + (2.0 / L) * terms.sum(axis=-1)
+
+
+def fit_profile(x, v, orifice: Orifice, x_range: tuple[float, float] | None = None,
+                walls: str = "reflecting", *, se=None, broadening: float = 0.0,
+                s_range: tuple[float, float] = (1e-3, 1e6)) -> tuple[float, float]:
+    """Fit a downward-speed profile by the Kinematic Model: ``v ~ A K(x; s + broadening)``.
+
+    ``K`` is :func:`slot_profile` with the orifice's profile and the walls; the amplitude
+    ``A`` (the flux through the height) is linear and solved exactly for each ``s``; ``s``
+    (``b z`` for a constant ``b``, d**2) by a grid search on a log scale refined with
+    Brent's bounded method. ``broadening`` (d**2) is added to ``s`` in the model, e.g.
+    ``width**2 / 2`` for a profile coarse-grained with a Gaussian of that width.
+
+    Args:
+        x, v: positions (d) and speeds; NaN entries are ignored.
+        orifice, x_range, walls: as :func:`slot_profile`.
+        se: standard errors of ``v`` (weights ``1/se**2``), or None for equal weights.
+
+    Returns:
+        ``(s, A)``; NaN if fewer than 4 finite points.
+    """
+    import math
+
+    from scipy.optimize import minimize_scalar
+
+    x, v = np.asarray(x, float), np.asarray(v, float)
+    ok = np.isfinite(v) & (np.isfinite(se) if se is not None else True)
+    if ok.sum() < 4:
+        return math.nan, math.nan
+    w = np.ones(ok.sum()) if se is None else 1.0 / np.maximum(np.asarray(se, float)[ok], 1e-300) ** 2
+    xv, vv = x[ok], v[ok]
+
+    def chi2(s):
+        K = slot_profile(xv, s + broadening, orifice, x_range, walls)
+        A = np.sum(w * vv * K) / np.sum(w * K * K)
+        return float(np.sum(w * (vv - A * K) ** 2)), float(A)
+
+    grid_s = np.geomspace(s_range[0], s_range[1], 80)
+    j = int(np.argmin([chi2(s)[0] for s in grid_s]))
+    lo, hi = grid_s[max(j - 1, 0)], grid_s[min(j + 1, grid_s.size - 1)]
+    res = minimize_scalar(lambda ls: chi2(math.exp(ls))[0], bounds=(math.log(lo), math.log(hi)),
+                          method="bounded", options={"xatol": 1e-7})
+    s = math.exp(res.x)
+    return s, chi2(s)[1]
 
 
 def speed(grid: Grid, orifice: Orifice, b, progress=None) -> np.ndarray:

@@ -349,15 +349,17 @@ def effective_spot_length(kernel, b, b_par=0.0, rule=0.5) -> dict:
     Returns:
         ``{"xx", "zz"[, "yy"]}`` in d.
     """
+    # b_eff depends on the kernel's shape only (b_p scales like V2/V1 at a fixed shape):
+    # the key leaves out the amplitude, so a change of kernel.height or volume is free
     key = (type(kernel).__name__, kernel.dims, float(kernel.a_h), float(kernel.aspect),
-           float(kernel.V1), float(b), float(b_par), float(rule))
+           float(b), float(b_par), float(rule))
     if key not in _CACHE:
         if len(_CACHE) > 256:
             _CACHE.clear()
-        _CACHE[key] = length_tensor(kernel, b, b_par, rule)
-    bp = _CACHE[key]
-    ratio = kernel.V1 / kernel.V2
-    return {k: v * ratio for k, v in bp.items() if k in ("xx", "yy", "zz")}
+        bp = length_tensor(kernel, b, b_par, rule)
+        ratio = kernel.V1 / kernel.V2
+        _CACHE[key] = {k: v * ratio for k, v in bp.items() if k in ("xx", "yy", "zz")}
+    return dict(_CACHE[key])
 
 
 # -- the local form in non-uniform flow ----------------------------------------------------------

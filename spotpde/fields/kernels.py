@@ -181,6 +181,12 @@ class Kernel:
         """``int w^2 dr`` in d**dims."""
         return self.moment(2)
 
+    @property
+    def participation_area(self) -> float:
+        """``V1^2 / V2`` in d**dims: the area (3D: volume) of the uniform spot with the same
+        ``V1`` and ``V2``, a size measure common to every shape (``pi R^2`` for a disk)."""
+        return self.V1**2 / self.V2
+
     def moment(self, power: int) -> float:
         """``V_k = int w^k dr = A^k a_h^(d-1) a_z int g^k`` (exact closed form), d**dims."""
         return self.amplitude**power * self._scaled_volume() * self._unit_integral(power)

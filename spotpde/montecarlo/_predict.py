@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 
+from ..fields import _passage
 from . import _mc_kernels as K
 from ._simulate import CUTOFF, STEPS
 
@@ -43,7 +44,7 @@ def spot_walks(b: float, step: float, n_walks: int, n_steps: int, gamma: float =
 # ---------------------------------------------------------------------------------------
 def uniform_flow_prediction(kernel, b: float, flux: float, rule: float = 0.5,
                             resolution: int = 16, cutoff: float = CUTOFF,
-                            b_par: float = 0.0) -> dict:
+                            b_par: float = 0.0, diffusivity: str = "passage") -> dict:
     """Lagrangian drift and diffusivities of the discrete model in uniform flow.
 
     Uniform flow: spots cross each height at ``flux = rho_s v_s`` per unit length (area in
@@ -65,20 +66,23 @@ def uniform_flow_prediction(kernel, b: float, flux: float, rule: float = 0.5,
         kernel: a ``spotpde.kernels`` kernel (2D or 3D).
         b: spot diffusion length in d. flux: ``rho_s v_s`` in spots / (d^(dims-1) time).
         rule: lam. b_par: vertical spot diffusion length in d.
-        resolution, cutoff: ignored (kept for old callers; the quadrature sets its own
-            resolution, docs/coefficients.md).
+        resolution, cutoff: not used (the quadrature sets its own resolution,
+            docs/coefficients.md); accepted so that existing calls keep working.
+        diffusivity: ``"passage"`` (the discrete model, default) or ``"mean-field"``
+            (the paper's eq. Dp: ``b V2/V1``, no shot noise). For every uniform-flow
+            observable at once (Peclet numbers, the cage-breaking fall, the spot's size)
+            use :func:`spotpde.pair.uniform_flow`.
 
     Returns:
         dict with ``u_z``, ``D_xx``, ``D_xx_meanfield``, ``D_zz``, ``b_p``,
         ``b_p_meanfield`` (``= b V2 / V1``), ``b_p_par``, ``EY2``, ``EZ2``
         (``E[Y^2]`` and ``E[Z^2]`` integrated over the offset, in d**(dims+1)).
     """
-    from ..fields import _passage
-
     lam = float(rule)
     V1, V2 = float(kernel.V1), float(kernel.V2)
-    bp = _passage.length_tensor(kernel, b, b_par, lam)
-    mid = bp if lam == 0.5 else _passage.length_tensor(kernel, b, b_par, 0.5)
+    bp = _passage.length_tensor(kernel, b, b_par, lam, diffusivity=diffusivity)
+    mid = bp if lam == 0.5 else _passage.length_tensor(kernel, b, b_par, 0.5,
+                                                       diffusivity=diffusivity)
     b_mf = b * V2 / V1
     EY2 = 8.0 * V1 * (b_mf - mid["xx"])
     u_z = -V1 * flux

@@ -52,6 +52,9 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy import integrate
 
+from ..errors import NumericalError
+from ..fields import _passage
+
 DIFFUSIVITIES = ("passage", "mean-field")
 #: Subsamples per cell side used for the cut cells' areas, centroids and apertures.
 _SUB = 32
@@ -110,8 +113,6 @@ def relative_tensor(kernel, b, rule=0.5, b_par=0.0, diffusivity="passage", X=0.0
     if diffusivity == "mean-field":
         return mean_field_tensor(kernel, b, b_par, X, Z, b_p=b_p)
     _check_kernel_2d(kernel)
-    from ..fields import _passage  # the discrete model's passage statistics
-
     X, Z = np.broadcast_arrays(np.asarray(X, float), np.asarray(Z, float))
     B = _passage.length_tensor(kernel, b, b_par, rule, diffusivity="passage",
                                separation=(X, Z))
@@ -336,6 +337,52 @@ def _start_weights(mesh: _Mesh, index, start):
     return p0
 
 
+def _setup(tensor, contact, separation, start, spacing, axisym):
+    """Mesh, generator ``Q``, absorption rates, cell index, start weights ``p0``, the start
+    point and the fraction of cells whose mixed term was clipped (see :func:`solve`)."""
+    c, s = float(contact), float(separation)
+    ring = isinstance(start, str)
+    start = ((c, 0.0) if start is None or ring else (float(start[0]), float(start[1])))
+    h = float(spacing) if spacing is not None else c / 16
+    mesh = _mesh(c, s, h, axisym=axisym)
+    act = mesh.active
+    B = tensor(np.where(act, mesh.cx, 0.0), np.where(act, mesh.cz, 0.0))
+    B = {k: np.broadcast_to(np.asarray(B[k], float), act.shape) for k in ("xx", "xz", "zz")}
+    clipped = float(np.mean((np.abs(B["xz"]) > np.minimum(B["xx"], B["zz"]) + 1e-300)[act]))
+    if axisym and np.any(B["xz"][act] != 0):
+        raise ValueError("axisym needs B^xz = 0 (a horizontally isotropic, diagonal tensor)")
+    Q, kill, index = _generator(mesh, B, s)
+    if ring:
+        # directions uniform on the circle (3D: on the sphere, weight R = c cos(angle))
+        ang = (np.arange(256) + 0.5) / 256 * (np.pi if axisym else 2 * np.pi) - (np.pi / 2 if axisym else 0)
+        wts = np.cos(ang) if axisym else np.ones_like(ang)
+        r0 = c * (1 + 1e-9)
+        p0 = sum(w * _start_weights(mesh, index, (r0 * np.cos(a), r0 * np.sin(a)))
+                 for a, w in zip(ang, wts)) / wts.sum()
+    else:
+        p0 = _start_weights(mesh, index, start)
+    return mesh, Q, kill, index, p0, start, clipped
+
+
+def _mean_fall(Q, p0) -> float:
+    """Mean fall before absorption: ``p0 . T`` with ``-Q T = 1`` (the backward equation),
+    one sparse solve."""
+    T = spla.splu((-Q).tocsc()).solve(np.ones(Q.shape[0]))
+    mean = float(p0 @ T)
+    if not np.isfinite(mean) or mean <= 0:
+        raise NumericalError("the pair never leaves the cage: B vanishes on the way out")
+    return mean
+
+
+def mean_fall(tensor, contact=1.0, separation=2.0, start=None, *, spacing=None,
+              axisym=False) -> float:
+    """Mean cage-breaking fall (d) of :func:`solve`'s problem by one sparse solve, without
+    the survival curve (same arguments)."""
+    mesh, Q, kill, index, p0, start, clipped = _setup(tensor, contact, separation, start,
+                                                      spacing, axisym)
+    return _mean_fall(Q, p0)
+
+
 def solve(tensor, contact=1.0, separation=2.0, start=None, *, spacing=None, frames=8,
           fall_end=None, steps_per_mean=200, absorbed=0.99, axisym=False):
     """Solve the relative Fokker-Planck equation for a given tensor field.
@@ -360,35 +407,10 @@ def solve(tensor, contact=1.0, separation=2.0, start=None, *, spacing=None, fram
         ``frames_fall``, ``P`` (frames, z, x; NaN outside the annulus), ``x``, ``z``,
         ``mass_error`` (max |survival + absorbed - 1|), ``min_P``, ``spacing``, ``mixed_clipped``.
     """
-    c, s = float(contact), float(separation)
-    ring = isinstance(start, str)
-    start = ((c, 0.0) if start is None or ring else (float(start[0]), float(start[1])))
-    h = float(spacing) if spacing is not None else c / 16
-    mesh = _mesh(c, s, h, axisym=axisym)
-    act = mesh.active
-    B = tensor(np.where(act, mesh.cx, 0.0), np.where(act, mesh.cz, 0.0))
-    B = {k: np.broadcast_to(np.asarray(B[k], float), act.shape) for k in ("xx", "xz", "zz")}
-    clipped = float(np.mean((np.abs(B["xz"]) > np.minimum(B["xx"], B["zz"]) + 1e-300)[act]))
-    if axisym and np.any(B["xz"][act] != 0):
-        raise ValueError("axisym needs B^xz = 0 (a horizontally isotropic, diagonal tensor)")
-    Q, kill, index = _generator(mesh, B, s)
-    n = Q.shape[0]
-    if ring:
-        # directions uniform on the circle (3D: on the sphere, weight R = c cos(angle))
-        ang = (np.arange(256) + 0.5) / 256 * (np.pi if axisym else 2 * np.pi) - (np.pi / 2 if axisym else 0)
-        wts = np.cos(ang) if axisym else np.ones_like(ang)
-        r0 = c * (1 + 1e-9)
-        p0 = sum(w * _start_weights(mesh, index, (r0 * np.cos(a), r0 * np.sin(a)))
-                 for a, w in zip(ang, wts)) / wts.sum()
-    else:
-        p0 = _start_weights(mesh, index, start)
-    # mean fall: -Q T = 1 (backward equation), one sparse solve
-    lu_T = spla.splu((-Q).tocsc())
-    T = lu_T.solve(np.ones(n))
-    mean = float(p0 @ T)
-    if not np.isfinite(mean) or mean <= 0:
-        from ..errors import NumericalError
-        raise NumericalError("the pair never leaves the cage: B vanishes on the way out")
+    mesh, Q, kill, index, p0, start, clipped = _setup(tensor, contact, separation, start,
+                                                      spacing, axisym)
+    h, act, n = mesh.h, mesh.active, Q.shape[0]
+    mean = _mean_fall(Q, p0)
     dt = (mean if fall_end is None else min(mean, float(fall_end))) / steps_per_mean
     A = (sp.identity(n, format="csc") - dt * Q.T.tocsc()).tocsc()
     lu = spla.splu(A)
