@@ -51,16 +51,11 @@ def check_consistency(v: _Validator, data: dict) -> None:
     if z0 != 0.0:
         v.bad("domain.z", "must start at 0 (the orifice is the floor z = 0)", d["z"])
     for name, (a, b) in (("x", d["x"]), ("z", d["z"])):
-        n = (b - a) / h
-        if not math.isfinite(n) or n > 1e9:
-            v.bad("domain.spacing", f"is far too small for the domain.{name} extent "
-                  f"{_show(b - a)} ({n:.3g} cells)", h)
-        elif round(n) < 4:
-            v.bad("domain.spacing", f"must give at least 4 cells across the "
-                  f"domain.{name} extent {_show(b - a)}", h)
-        elif abs(n - round(n)) > 1e-6 * max(1.0, n):
-            v.bad("domain.spacing", f"must divide the domain.{name} extent "
-                  f"{_show(b - a)} into whole cells", h)
+        extent = f"the domain.{name} extent {_show(b - a)}"
+        _check_cells(v, "domain.spacing", h, b - a, h, {
+            "many": f"is far too small for {extent} ({{n:.3g}} cells)",
+            "few": f"must give at least 4 cells across {extent}",
+            "partial": f"must divide {extent} into whole cells"})
     # orifice on the floor
     half = 0.5 * o["width"] if o["profile"] == "uniform" else 0.0
     # axisymmetric: the orifice is the disk r <= width/2 around the axis r = x0 = 0
@@ -191,17 +186,30 @@ def _check_depth(v: _Validator, d: dict) -> tuple[float, float]:
         v.bad("domain.y", "is only used when domain.dims = 3 (the depth of a 3D silo); "
               "remove it", y)
         return tuple(d["x"])
-    n = (y[1] - y[0]) / h
-    if not math.isfinite(n) or n > 1e9:
-        v.bad("domain.y", f"spans far too many cells of domain.spacing = {_show(h)} "
-              f"({n:.3g})", y)
-    elif round(n) < 4:
-        v.bad("domain.y", f"must be at least 4 cells of domain.spacing = {_show(h)} "
-              f"deep, got an extent of {_show(y[1] - y[0])}", y)
-    elif abs(n - round(n)) > 1e-6 * max(1.0, n):
-        v.bad("domain.y", f"must be a whole number of cells of domain.spacing = "
-              f"{_show(h)}, got an extent of {_show(y[1] - y[0])} ({n:.6g} cells)", y)
+    cells, extent = f"cells of domain.spacing = {_show(h)}", _show(y[1] - y[0])
+    _check_cells(v, "domain.y", y, y[1] - y[0], h, {
+        "many": f"spans far too many {cells} ({{n:.3g}})",
+        "few": f"must be at least 4 {cells} deep, got an extent of {extent}",
+        "partial": f"must be a whole number of {cells}, got an extent of {extent} "
+                   "({n:.6g} cells)"})
     return tuple(y)
+
+
+def _check_cells(v: _Validator, key: str, value, extent: float, h: float,
+                 messages: dict[str, str]) -> None:
+    """Record on ``v`` (naming ``key``) what is wrong with the number of cells of spacing
+    ``h`` across ``extent``: ``messages["many"]`` (not finite or over 1e9), ``["few"]``
+    (under 4) or ``["partial"]`` (not whole), each formatted with ``n`` the cells."""
+    n = extent / h
+    if not math.isfinite(n) or n > 1e9:
+        problem = "many"
+    elif round(n) < 4:
+        problem = "few"
+    elif abs(n - round(n)) > 1e-6 * max(1.0, n):
+        problem = "partial"
+    else:
+        return
+    v.bad(key, messages[problem].format(n=n), value)
 
 
 def _check_geometry(v: _Validator, data: dict) -> None:
