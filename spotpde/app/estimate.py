@@ -14,8 +14,8 @@ diffusion, two sparse backward-Euler solves per step. The rates below are conser
 benchmarks/steady.py):
 
 * ``weno5``: 2.0e7 cell-steps per second; the other reconstructions 3.0e7; a 3D cell
-  costs :data:`STEP_COST_3D` times a 2D one (a third axis of fluxes and the y lines'
-  boundary fallbacks: 48-51 against 98 Mcell per CPU second and stage, docs/tracer.md);
+  costs :data:`STEP_COST_3D` times a 2D one (a third axis of fluxes and short rows:
+  47-63 against 87-109 Mcell/s a stage on one thread, docs/tracer.md);
 * implicit diffusion: 8e6 cell-steps per second for the two LU solves and flux products
   (void-model propagator, 8.96e4 cells: 16 ms a step in all with one thread at a load
   average of 3, of which about 5 ms are the SSP-RK3 advection).
