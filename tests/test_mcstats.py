@@ -52,6 +52,25 @@ def test_calibration_tools_accept_right_errors_and_reject_wrong_ones():
     assert mcstats.replicas(lambda s: 2 * s, [1, 2], scheduler="synchronous") == [2, 4]
 
 
+def test_se_calibration_accepts_right_errors_at_the_stated_rate():
+    """With exact errors and Gaussian estimates, ``ratio^2 ~ chi2(m (R - 1)) / (m (R - 1))``
+    (sample variances over ``R`` replicas lose one degree of freedom each): the
+    acceptance interval is that distribution's central ``1 - level`` interval, so right
+    errors are accepted in ``1 - level`` of independent trials (``m R`` degrees of freedom
+    would accept only 70 % here)."""
+    R, m, level, trials = 3, 2, 0.2, 2000
+    rng = np.random.default_rng(5)
+    sd = np.array([0.3, 4.0])
+    est = 1.0 + sd * rng.standard_normal((trials, R, m))
+    se = np.broadcast_to(sd, (R, m))
+    accepted = [mcstats.se_calibration(e, se, level=level)["calibrated"] for e in est]
+    rate = float(np.mean(accepted))
+    _se = math.sqrt(level * (1 - level) / trials)
+    assert abs(rate - (1 - level)) <= NSIG * _se, (rate, _se)
+    one = mcstats.se_calibration(est[0], se, level=level)
+    assert one["dof"] == m * (R - 1)
+
+
 def test_particle_density_and_drained_fraction_bookkeeping():
     g = Grid(2, (-2.0, 2.0), (0.0, 4.0), 0.5)
     pts = np.array([[0.1, 0.1], [0.1, 0.2], [-1.9, 3.9], [np.nan, np.nan]])

@@ -147,6 +147,36 @@ def test_persistence_inside_simulate_spreads_spots_by_b():
     assert abs(per.mean() - 2 * b0 * z) > NSIG * per.std(ddof=1) / math.sqrt(per.size)
 
 
+def test_coverage_between_table_nodes_is_the_closed_form():
+    """The loop's ``1/phi`` off the table's nodes (linear interpolation, the value each spot
+    step is divided by) against the disk's closed form ``phi = 1 - (arccos d - d sqrt(1 -
+    d^2))/pi`` (``d`` the distance to the nearer wall over R): error below the interpolation
+    bound ``dx^2 max|phi''| / 8``, far below the nearest node's ``dx |phi'| / 2``."""
+    from spotpde.fields import _walls
+    from spotpde.montecarlo import _mc_kernels as K
+
+    R, half = 2.5, 4.0
+    x0, dx, tab = _walls.coverage_table("uniform", R, R, 0.0024, (R, R), -half, half)
+
+    def phi(x):
+        d = np.clip((half - np.abs(x)) / R, -1, 1)
+        return 1.0 - (np.arccos(d) - d * np.sqrt(1 - d * d)) / np.pi
+
+    # midway between nodes where the kernel crosses a wall smoothly (|d| <= 0.9)
+    mid = x0 + dx * (np.arange(tab.size - 1) + 0.5)
+    mid = mid[np.abs((half - np.abs(mid)) / R) <= 0.9]
+    got = 1.0 / K.coverage_inverse_eval(mid, x0, dx, tab)
+    # phi' = 2 sqrt(1 - d^2) / (pi R), |phi''| = 2 |d| / (pi R^2 sqrt(1 - d^2)) <= its value
+    # at |d| = 0.9 + dx / R (the interval around each point)
+    d = 0.9 + dx / R
+    curv = 2 * d / (np.pi * R * R * np.sqrt(1 - d * d))
+    slope = 2 / (np.pi * R)
+    err = np.abs(got - phi(mid)).max()
+    assert err <= dx * dx * curv / 8 < 0.1 * dx * slope / 2
+    # no table: no renormalisation
+    assert K.coverage_inverse_eval(mid[:3], 0.0, 0.0, np.zeros(0)).tolist() == [1.0] * 3
+
+
 # ---------------------------------------------------------------------------------------
 # uniform flow: b_p = b V2 / V1 (rule 1), midpoint correction, shot noise, C_p(r)
 # ---------------------------------------------------------------------------------------
@@ -212,6 +242,39 @@ def test_uniform_flow_midpoint_rule_diffuses_less_than_mean_field():
     _close(0.5 * per[2].mean(), 0.5 * se[2], pred["D_xx_meanfield"])     # D_xx = V2 rho_s D_s
     ds = mc.measure(r)
     assert float(ds.u_z.sel(z=slice(8, 36), x=slice(-6, 6)).mean()) == pytest.approx(per[1].mean())
+
+
+def test_vertical_midpoint_keeps_the_particle_flux_where_spots_leave():
+    """``b_par > 0``, spots injected across the whole floor, rule 1/2: the vertical drift
+    term ``2 lam d_z(D_par rho_s)`` cancels the fall of ``rho_s`` within ``b_par`` of the
+    top, where spots leave (``rho_s ~ 1 - e``, ``e = exp(-(z1 - z) / b_par)``), since the
+    spot flux ``v_s rho_s - D_par d_z rho_s`` is ``Q0 / W`` at every height: so
+    ``u_z = -V1 Q0 / W`` right up to a kernel's reach below the top. Rule 1 (the influence
+    at the step's end, vertically too) would give ``-V1 (Q0 / W) (1 + e)``: the fitted
+    fraction ``c`` of that excess is 0, and 1 is rejected (measured: c = -0.08 +- 0.07;
+    0.84 +- 0.09 with the vertical influence put at the step's end, rows up to 1.38)."""
+    from spotpde.montecarlo import mcstats
+
+    W, H, b_par = 16.0, 12.0, 3.0
+    g = Grid(2, (-W / 2, W / 2), (0.0, H), 0.5)
+    k = kernels.Gaussian(sigma=0.5, volume=0.05, dims=2)
+    r = mc.simulate(g, Orifice(x=0.0, width=W, rate=W), Spots(drift=1.0, b=B, b_par=b_par), k,
+                    rule=0.5, t_end=200.0, step=0.1, seed=3, batches=20)
+    r = mcstats.discard(r, H)            # the warm-up while the spots fill the silo
+    per = r.probe[1] / (r.batch_ticks[:, None, None] * r.dt)      # u_z, (batch, z, x)
+    rh, rv = mc.kernel_params(k).reach
+    cols = np.abs(g.x) < W / 2 - 2 * rh             # phi = 1 for every spot reaching them
+    rows = (g.z > rv) & (g.z < H - rv)
+    bulk = -k.V1 * W / W                             # -V1 Q0 / W, Q0 = W, v_s = 1
+    u = per[:, rows][:, :, cols].mean(axis=2) / bulk                # (batch, row)
+    m, se = u.mean(axis=0), u.std(axis=0, ddof=1) / math.sqrt(u.shape[0])
+    for mi, si in zip(m, se):
+        _close(mi, si, 1.0)
+    e = np.exp(-(H - g.z[rows]) / b_par)
+    c = (u - 1.0) @ e / (e @ e)                                   # per batch
+    c_mean, c_se = c.mean(), c.std(ddof=1) / math.sqrt(c.size)
+    _close(c_mean, c_se, 0.0)
+    assert 1.0 - c_mean > 2 * NSIG * c_se
 
 
 def test_uniform_flow_prediction_gaussian_closed_form():

@@ -259,6 +259,35 @@ def test_passage_diffusivity_lengthens_the_cage_at_midpoint_rule():
     np.testing.assert_allclose(B["xx"] / Bm["xx"], [0.20, 0.26, 0.30], atol=0.02)
 
 
+def test_passage_tensor_scales_with_the_local_b_p():
+    """Local uniform-flow approximation: the passage tensor with local single-particle
+    lengths ``b_p = diag(s_x, s_z) b_u`` (``b_u`` the uniform-flow ones) is ``S B_u S``,
+    ``S = diag(sqrt(s_x), sqrt(s_z))``: ``B^xx`` times ``s_x``, ``B^zz`` times ``s_z``, the
+    cross term (not zero off the axes) times ``sqrt(s_x s_z)``, and a local ``b_p^xz`` adds
+    its mean-field form ``2 b_p^xz (1 - C)``; ``b_p = 2 b_u`` halves the mean fall (the
+    equation is linear in ``B``)."""
+    from spotpde.fields import _passage
+
+    k = Gaussian(sigma=1.0, volume=0.05)
+    b, b_par = 1.3, 0.4
+    uniform = _passage.length_tensor(k, b, b_par, 0.5)
+    X, Z = np.array([1.0, 1.2, 1.5, 0.0, 0.7]), np.array([0.0, 0.5, 1.0, 1.5, -0.9])
+    B_u = pair.relative_tensor(k, b, 0.5, b_par, "passage", X, Z)
+    assert np.abs(B_u["xz"]).max() > 0.2 * B_u["xx"].max()
+    sx, sz, xz = 2.0, 0.5, 1e-3
+    local = {"xx": sx * uniform["xx"], "xz": xz, "zz": sz * uniform["zz"]}
+    B = pair.relative_tensor(k, b, 0.5, b_par, "passage", X, Z, b_p=local)
+    np.testing.assert_allclose(B["xx"], sx * B_u["xx"], rtol=1e-14)
+    np.testing.assert_allclose(B["zz"], sz * B_u["zz"], rtol=1e-14)
+    # sqrt(s_x s_z) = 1: the uniform cross term, plus the local one's mean-field form
+    np.testing.assert_allclose(B["xz"], B_u["xz"] + 2 * xz * (1 - k.correlation_vector(X, Z)),
+                               rtol=1e-12)
+    uni = pair.cage_breaking(k, b, rule=0.5, b_par=b_par, spacing=0.25, steps_per_mean=50)
+    fast = pair.cage_breaking(k, b, rule=0.5, b_par=b_par, spacing=0.25, steps_per_mean=50,
+                              b_p={key: 2.0 * v for key, v in uniform.items()})
+    assert fast.attrs["mean_fall"] == pytest.approx(uni.attrs["mean_fall"] / 2.0, rel=1e-9)
+
+
 # -- the [pair] table of a case ---------------------------------------------------------
 UNIFORM_CASE = {
     "domain": {"x": [-5.0, 5.0], "z": [0.0, 10.0], "spacing": 0.5},

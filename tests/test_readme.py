@@ -26,7 +26,7 @@ def test_readme_case_is_the_flagship_and_valid():
 
 
 def test_readme_python_example_runs(monkeypatch):
-    (block,) = _blocks("python")
+    block = _blocks("python")[0]
     monkeypatch.chdir(ROOT)
     namespace: dict = {}
     exec(compile(block, "README.md", "exec"), namespace)
@@ -40,3 +40,15 @@ def test_readme_commands_are_what_ci_runs():
     commands = _blocks("bash")
     assert commands[0].strip() == "pip install . && spotpde run cases/quasi2d_layers.toml --plot"
     assert commands[1].strip() in ci
+
+
+def test_readme_data_in_example_names_the_public_api():
+    """The data-in example needs a user's tracks file: it must compile and call only
+    public names that exist."""
+    (block,) = [b for b in _blocks("python") if "spotpde.tracks.read" in b]
+    compile(block, "README.md", "exec")
+    for name in re.findall(r"spotpde\.([a-z_]+(?:\.[a-z_]+)?)\(", block):
+        obj = spotpde
+        for part in name.split("."):
+            obj = getattr(obj, part)
+        assert callable(obj), name

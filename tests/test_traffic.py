@@ -155,7 +155,7 @@ def test_small_bump_moves_at_c(rho0):
     rho = column(rho0 + bump, t, h, D=0.05, floor_flux=q(rho0))["rho"][-1]
     # window of 15 d around the bump: above rho_c the free exit at the top opens a fan
     # whose edge runs down to about z = 30 - 0.5 t = 25; the floor is quiet (q(rho0))
-    c0 = 1.0 - 2.0 * rho0
+    c0 = float(GS.c(rho0, 1.0, 1.0))     # the library's c(rho), against the measured speed
     win = np.abs(z - c0 * t) < 15
     d = (rho - rho0)[win]
     speed = np.sum(z[win] * d) / np.sum(d) / t
@@ -245,6 +245,7 @@ def test_triangular_flux_waves_at_plus_minus_v():
     z = cells(-20.0, 20.0, h)
     tri = T.FLUXES["triangular"]
     for rho0, c in ((0.2, 1.0), (0.8, -1.0)):
+        assert float(tri.c(rho0, 1.0, 1.0)) == c
         bump = eps * np.exp(-0.5 * (z / 1.5) ** 2)
         rho = column(rho0 + bump, t, h, floor_flux=tri.q(rho0, 1.0, 1.0), flux=tri)["rho"][-1]
         win = np.abs(z - c * t) < 10        # the top exit's jump runs down from z = 20 at -v_s
@@ -346,6 +347,16 @@ def test_run_dataset_variables(tmp_path):
     np.testing.assert_allclose(axis[-1], ds["free_volume"].sel(x=0.25), rtol=1e-12)
     again = spotpde.run(spotpde.load_case(_case(tmp_path)))
     np.testing.assert_array_equal(ds["requested_rate"], again["requested_rate"])
+    # the space-time plot's characteristics: slope c = v_s (1 - 2 rho / rho_max) at the
+    # mean density of the later half on the axis
+    fig = traffic.plot_space_time(ds, characteristics=True)
+    line = fig.axes[0].lines[0]
+    t, zl = line.get_xdata(), line.get_ydata()
+    rho = traffic.space_time(ds, "rho_s_t").values
+    rho0 = float(np.mean(rho[len(rho) // 2:]))
+    c = ds.attrs["v_s"] * (1.0 - 2.0 * rho0 / ds.attrs["rho_max"])
+    assert (zl[-1] - zl[0]) / (t[-1] - t[0]) == pytest.approx(c, rel=1e-12)
+    assert len(fig.axes[0].lines) == 5
 
 
 @pytest.mark.parametrize("kwargs, key", [

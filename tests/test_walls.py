@@ -111,15 +111,21 @@ def _closed_form(x, lam):
     return uz, ux, dxx
 
 
-def _uniform_fields(h, lam, walls="renormalise"):
+def _uniform_fields(h, lam, walls="renormalise", path="fast"):
+    """``path``: "fast" (constant coefficients: bulk transform plus wall strips),
+    "array" (the drift as a grid array: the general path, every source divided by phi
+    and phi^2, one transform each) or "mask" (a material mask: the general path too)."""
     grid = Grid(2, (-HALF, HALF), (0.0, 16.0), h)
     orifice = Orifice(x=0.0, width=2.0 * HALF, rate=Q0)
     spots = Spots(b=B)
     rho = spot_density.steady(grid, orifice, spots)
+    if path == "array":
+        spots = Spots(drift=np.ones(grid.shape), b=B)
+    mask = np.ones(grid.shape) if path == "mask" else None
     # the closed form is the mean-field one (the passage drift adds div(D_p - D_p_mf),
     # which is not zero where phi varies)
     f = C.particle_fields(grid, rho, spots, kernels.Gaussian(sigma=SIG, volume=V1, dims=2),
-                          rule=lam, walls=walls, diffusivity="mean-field")
+                          rule=lam, walls=walls, diffusivity="mean-field", mask=mask)
     k = int(np.argmin(np.abs(grid.z - 8.0)))
     return grid, {key: a[k] for key, a in f.items()}
 
@@ -150,6 +156,27 @@ def test_uniform_flow_between_walls_matches_closed_form_at_second_order(lam):
     _, t = _uniform_fields(0.125, lam, walls="truncate")
     assert -t["u_z"][0] < 0.6 * bulk < 0.7 * bulk < -f["u_z"][0] < 0.8 * bulk
     assert -f["u_z"].min() > 1.05 * bulk and -t["u_z"].min() < 1.0001 * bulk
+
+
+@pytest.mark.parametrize("path", ["array", "mask"])
+@pytest.mark.parametrize("lam", [0.5, 1.0])
+def test_general_renormalised_path_matches_the_closed_form(path, lam):
+    """The path of space-dependent coefficients (and of a material mask) meets the same
+    closed forms as the constant-coefficient one: ``u_z`` (sources over phi), ``D_xx``
+    (sources over phi^2) and the wall layer of rule 1, to the same second-order error."""
+    bulk = V1 * Q0 / (2.0 * HALF)
+    grid, f = _uniform_fields(0.125, lam, path=path)
+    uz, ux, dxx = _closed_form(grid.x, lam)
+    assert np.abs(f["u_z"] - uz).max() < 1e-3 * bulk
+    assert np.abs(f["D_xx"] - dxx).max() < 2.5e-3 * dxx.max()
+    assert -f["u_z"].sum() * grid.spacing == pytest.approx(V1 * Q0, rel=1e-12)
+    if lam == 1.0:
+        assert np.abs(f["u_x"] - ux).max() < 0.01 * np.abs(ux).max()
+    # the same numbers as the fast path (which the closed-form test above checks)
+    _, fast = _uniform_fields(0.125, lam)
+    for key in ("u_z", "u_x", "D_xx"):
+        scale = max(np.abs(fast[key]).max(), bulk)    # u_x of lam = 1/2 is round-off
+        np.testing.assert_allclose(f[key], fast[key], rtol=0, atol=1e-12 * scale, err_msg=key)
 
 
 def test_wall_layer_of_rule_one_is_divided_by_the_coverage_at_the_wall():

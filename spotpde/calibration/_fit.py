@@ -43,8 +43,9 @@ __all__ = ["fit", "RELATIVE_STEP"]
 RELATIVE_STEP = 2e-3
 
 
-def _pname(key: str) -> str:
-    return key.replace(".", "__")
+def _pname(index: int) -> str:
+    """lmfit's name of the ``index``-th free key (dotted keys are not Python names)."""
+    return f"p{index}"
 
 
 def _steps(values, lo, hi) -> np.ndarray:
@@ -127,7 +128,7 @@ def fit(case, tracks, free: Mapping[str, tuple[float, float] | None],
         return memo[key]
 
     def values_of(params):
-        return np.array([params[_pname(k)].value for k in keys])
+        return np.array([params[_pname(i)].value for i in range(len(keys))])
 
     def residual(params):
         return (model_vector(values_of(params)) - targets.y) / targets.sigma
@@ -138,8 +139,8 @@ def fit(case, tracks, free: Mapping[str, tuple[float, float] | None],
         return J / targets.sigma[:, None]
 
     params = lmfit.Parameters()
-    for k, v, a, b in zip(keys, x0, lo, hi):
-        params.add(_pname(k), value=v, min=a, max=b)
+    for i, (v, a, b) in enumerate(zip(x0, lo, hi)):
+        params.add(_pname(i), value=v, min=a, max=b)
     minimizer = lmfit.Minimizer(residual, params)
     out = minimizer.minimize(method="least_squares", jac=jac, x_scale="jac",
                              max_nfev=max_nfev or 50 * (len(keys) + 1))

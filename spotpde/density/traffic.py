@@ -287,9 +287,10 @@ def plot_space_time(ds, variable: str = "free_volume_t", x: float | None = None,
                     path=None, characteristics: bool = False):
     """Space-time diagram (time across, height up) of ``variable`` along the axis.
 
-    With ``characteristics``, dashed lines of slope ``c(rho)`` for the space-time mean
-    density of the later half of the run (Greenshields, drift ``v_s`` attribute) mark the
-    speed of small waves: meaningful only for a nearly uniform column.
+    With ``characteristics``, dashed lines of slope ``c(rho) = q'(rho)`` (the run's flux
+    shape, ``_traffic.FluxShape.c``, at the drift ``v_s`` attribute) for the space-time mean
+    density of the later half of the run mark the speed of small waves: meaningful only
+    for a nearly uniform column.
     Returns the matplotlib Figure; ``path`` also saves it.
     """
     import matplotlib
@@ -307,12 +308,11 @@ def plot_space_time(ds, variable: str = "free_volume_t", x: float | None = None,
         rho = space_time(ds, "rho_s_t", x).values
         late = rho[len(rho) // 2:]
         rho0 = float(np.mean(late))
-        c0 = float(ds.attrs.get("v_s", 1.0)) * (1 - 2 * rho0 / ds.attrs["rho_max"]) \
-            if ds.attrs.get("flux", "greenshields") == "greenshields" else None
-        if c0 is not None:
-            for z0 in np.linspace(z[0], z[-1], 5):
-                ax.plot(t, z0 + c0 * (t - t[len(t) // 2]), "w--", lw=0.7)
-            ax.set_title(f"{variable}: dashed lines at c(rho) = {c0:.3g} d/t (mean rho)")
+        flux = _traffic.flux_from_name(ds.attrs.get("flux", "greenshields"))
+        c0 = float(flux.c(rho0, float(ds.attrs.get("v_s", 1.0)), float(ds.attrs["rho_max"])))
+        for z0 in np.linspace(z[0], z[-1], 5):
+            ax.plot(t, z0 + c0 * (t - t[len(t) // 2]), "w--", lw=0.7)
+        ax.set_title(f"{variable}: dashed lines at c(rho) = {c0:.3g} d/t (mean rho)")
     ax.set_xlabel("t")
     ax.set_ylabel("z (d)")
     ax.set_ylim(z[0], z[-1])

@@ -9,18 +9,21 @@ See docs/montecarlo.md.
 
 Private modules: ``_simulate`` (run, result, kernel reduction), ``_mc_kernels`` (the
 numba loop and its :class:`~spotpde.montecarlo._mc_kernels.Params`), ``_particles``
-(particle sets), ``_measure`` (fields and statistics of a run), ``_predict`` (closed
+(particle sets), ``_relax`` (packing constraints: soft-core relaxation, docs/packing.md),
+``_measure`` (fields and statistics of a run), ``_predict`` (closed
 forms).
 """
 
 from ._measure import (displacement_statistics, measure, particle_frames, propagator,
                        velocity_correlation)
-from ._particles import blob, lattice, layer_mask, random_packing
+from ._particles import blob, dense_packing, lattice, layer_mask, random_packing
 from ._predict import spot_walks, uniform_flow_prediction
+from ._relax import DISTRIBUTIONS, Relax, draw_diameters, relax_packing
 from ._simulate import (CUTOFF, STEPS, KernelParams, MCResult, from_case, kernel_evaluate,
                         kernel_params, simulate)
 
-__all__ = ["CUTOFF", "STEPS", "KernelParams", "MCResult", "blob", "displacement_statistics",
+__all__ = ["CUTOFF", "DISTRIBUTIONS", "STEPS", "KernelParams", "MCResult", "Relax", "blob",
+           "dense_packing", "displacement_statistics", "draw_diameters", "relax_packing",
            "from_case", "kernel_evaluate", "kernel_params", "lattice", "layer_mask", "measure",
            "particle_frames", "propagator", "random_packing", "simulate", "spot_walks",
            "uniform_flow_prediction", "velocity_correlation"]

@@ -15,6 +15,8 @@ from typing import NamedTuple, get_type_hints
 import numpy as np
 from numba import njit
 
+from ._relax import relax_block
+
 
 class Params(NamedTuple):
     """The constants of one run, as :func:`advance` reads them.
@@ -102,7 +104,8 @@ WALLS_REFLECTING, WALLS_OPEN = 0, 1
 STEPS_GAUSSIAN, STEPS_BINARY = 0, 1
 # -- counters (int64 array ``cnt``) ---------------------------------------------------------
 C_TICK, C_INJECTED, C_STEPS, C_UPDATES, C_NACTIVE, C_PENDING, C_REBUILDS, C_REMOVED = range(8)
-NC = 8
+C_RELAXATIONS, C_RELAXED = 8, 9  # relaxations done, grains relaxed (summed)
+NC = 10
 # -- particle status ------------------------------------------------------------------------
 P_IN, P_ORIFICE, P_SIDE = 0, 1, 2
 
@@ -178,6 +181,110 @@ def build_cells(px, pz, status, x0, z0, cell, ncx, ncz, cell_start, cell_idx):
             fill[c] += 1
 
 
+@njit(cache=True, inline="always")
+def persistence(gamma):
+    """``(fresh, keep)`` of the horizontal step rule with step correlation ``gamma``.
+
+    ``fresh = sqrt(1 - gamma^2)``: the weight of the new normal in the AR(1) (Gaussian)
+    rule; ``keep = (1 + gamma)/2``: the binary walk's probability of keeping its sign (its
+    successive steps then correlate by ``2 keep - 1 = gamma``). Either way the long-distance
+    diffusion length is ``b = b0 (1 + gamma)/(1 - gamma)`` (docs/montecarlo.md section 2).
+    """
+    return math.sqrt(1.0 - gamma * gamma), 0.5 * (1.0 + gamma)
+
+
+@njit(cache=True, inline="always")
+def first_direction(steps):
+    """Stationary unit step variable of a new walk: ``N(0, 1)`` or ``+-1``."""
+    if steps == STEPS_GAUSSIAN:
+        return np.random.standard_normal()
+    return 1.0 if np.random.random() < 0.5 else -1.0
+
+
+@njit(cache=True, inline="always")
+def next_direction(xi, steps, gamma, fresh, keep):
+    """The next unit step variable: ``gamma xi + fresh eta`` (Gaussian, ``eta ~ N(0, 1)``)
+    or ``xi`` kept with probability ``keep``, else ``-xi`` (binary); see :func:`persistence`.
+    :func:`advance` and :func:`spot_walks` both step by this rule."""
+    if steps == STEPS_GAUSSIAN:
+        return gamma * xi + fresh * np.random.standard_normal()
+    return xi if np.random.random() < keep else -xi
+
+
+@njit(cache=True, inline="always")
+def coverage_inverse(x, tab_x0, tab_dx, phi_tab):
+    """``1 / phi(x)`` from the coverage table ``phi_tab`` at ``tab_x0 + k tab_dx`` (d).
+
+    Linear interpolation of ``phi`` between the two nodes around ``x`` (clamped to the
+    table's ends; error ``<= tab_dx^2 max|phi''| / 8``); 1 for a table of length 0 or 1
+    (no renormalisation).
+    """
+    n = phi_tab.size
+    if n <= 1:
+        return 1.0
+    tt = (x - tab_x0) / tab_dx
+    kt = min(max(int(math.floor(tt)), 0), n - 2)
+    ft = min(max(tt - kt, 0.0), 1.0)
+    return 1.0 / ((1.0 - ft) * phi_tab[kt] + ft * phi_tab[kt + 1])
+
+
+@njit(cache=True)
+def coverage_inverse_eval(x, tab_x0, tab_dx, phi_tab):
+    """Vectorised :func:`coverage_inverse` over the array ``x`` (for tests)."""
+    out = np.empty(x.size)
+    xf = x.ravel()
+    for i in range(xf.size):
+        out[i] = coverage_inverse(xf[i], tab_x0, tab_dx, phi_tab)
+    return out
+
+
+@njit(cache=True, inline="always")
+def _place(i, oxp, ozp, npx, npz, x0, x1, z0, walls, open_lo, open_hi, t_mid,
+           px, pz, status, moved, track_slot, levels, lev_next, cross_x, cross_t,
+           exit_x, exit_t):
+    """Move particle ``i`` from ``(oxp, ozp)`` to ``(npx, npz)``: mirror it at reflecting
+    walls or let it leave through open ones, record its level crossings (tracked) and
+    its exit through the floor's opening ``open_lo < x < open_hi`` (the whole floor
+    without relaxation). Returns its distance moved since the last binning (0 if it left
+    sideways)."""
+    if npx < x0 or npx > x1:
+        if walls == WALLS_OPEN:
+            status[i] = P_SIDE
+            px[i] = npx
+            pz[i] = npz
+            return 0.0
+        if npx < x0:
+            npx = 2.0 * x0 - npx
+        if npx > x1:
+            npx = 2.0 * x1 - npx
+        npx = min(max(npx, x0), x1)
+    m = moved[i] + abs(npx - oxp) + abs(npz - ozp)
+    moved[i] = m
+    ts = track_slot[i]
+    if ts >= 0:
+        k = lev_next[ts]
+        while k >= 0 and npz < levels[k]:
+            if ozp >= levels[k]:
+                f = (ozp - levels[k]) / (ozp - npz)
+                cross_x[ts, k] = oxp + f * (npx - oxp)
+            else:
+                cross_x[ts, k] = npx
+            cross_t[ts, k] = t_mid
+            k -= 1
+        lev_next[ts] = k
+    if npz < z0:
+        xe = npx  # a grain already below the floor (beside the opening) leaves where it is
+        if ozp >= z0:
+            xe = oxp + (ozp - z0) / (ozp - npz) * (npx - oxp)
+        if open_lo < xe < open_hi:
+            status[i] = P_ORIFICE
+            exit_x[i] = xe
+            exit_t[i] = t_mid
+    px[i] = npx
+    pz[i] = npz
+    return m
+
+
 @njit(cache=True)
 def _inject_x(profile, xc, width):
     if profile == PROFILE_POINT:
@@ -192,7 +299,7 @@ def advance(prm, cnt, n_ticks,
             sx, sz, sxi,
             px, pz, status, moved, cell_start, cell_idx,
             track_slot, tpos, rec_ticks, levels, lev_next, cross_x, cross_t, exit_x, exit_t,
-            probe, rho_hist, phi_tab):
+            probe, rho_hist, phi_tab, rp, diam, srel, blk, old):
     """Advance the simulation by at most ``n_ticks`` ticks.
 
     Each tick (duration ``dt = Delta / v_s``): inject ``Poisson(Q0 dt)`` spots on the floor,
@@ -217,6 +324,12 @@ def advance(prm, cnt, n_ticks,
         rho_hist: (n_batch, pnz, pnx) spot-count histogram (one sample per spot per tick).
         phi_tab: kernel coverage ``phi`` at ``x = tab_x0 + k tab_dx`` (linear
             interpolation; ``walls = "renormalise"``), or a length-0/1 array: ``phi = 1``.
+        rp: ``_relax.RelaxParams`` (``rp.on = 0``: no relaxation, the floor is open
+            everywhere). diam: grain diameters. srel: per spot, the start ``(x, z)`` of
+            the segment not yet relaxed and the steps since. blk, old: scratch of
+            ``_relax.relax_block`` (size: all particles).
+        After a spot's step (every ``rp.every``-th, and its last), the grains near it are
+        relaxed (``_relax.relax_block``) and moved as by the step itself (``_place``).
 
     Returns:
         Number of ticks done.
@@ -231,13 +344,11 @@ def advance(prm, cnt, n_ticks,
     pxo = prm.probe_x0; pzo = prm.probe_z0; ph = prm.probe_h
     dt = prm.dt
     tx0 = prm.tab_x0; tdx = prm.tab_dx
-    ntab = phi_tab.size
     shape = prm.shape; profile = prm.profile; walls = prm.walls; steps = prm.steps
     ncx = prm.ncx; ncz = prm.ncz; pnx = prm.pnx; pnz = prm.pnz
     nbatch = prm.n_batch; ticks_total = prm.ticks_total; use_probes = prm.probes
     cap = sx.size
-    fresh = math.sqrt(1.0 - gamma * gamma)
-    keep_p = 0.5 * (1.0 + gamma)
+    fresh, keep_p = persistence(gamma)
     n_rec = rec_ticks.size
     n_levels = levels.size
     npart = px.size
@@ -266,10 +377,10 @@ def advance(prm, cnt, n_ticks,
             j = cnt[C_NACTIVE]
             sx[j] = _inject_x(profile, xc, width)
             sz[j] = z0
-            if steps == STEPS_GAUSSIAN:
-                sxi[j] = np.random.standard_normal()
-            else:
-                sxi[j] = 1.0 if np.random.random() < 0.5 else -1.0
+            srel[j, 0] = sx[j]
+            srel[j, 1] = z0
+            srel[j, 2] = 0.0
+            sxi[j] = first_direction(steps)
             cnt[C_NACTIVE] += 1
         cnt[C_INJECTED] += n_new
         # ---- rebuild the particle cell list if someone may have left its cell -----------
@@ -283,10 +394,7 @@ def advance(prm, cnt, n_ticks,
         j = 0
         while j < cnt[C_NACTIVE]:
             # horizontal step: AR(1) (Gaussian) or persistent +-1 (binary), unit variance
-            if steps == STEPS_GAUSSIAN:
-                xi = gamma * sxi[j] + fresh * np.random.standard_normal()
-            else:
-                xi = sxi[j] if np.random.random() < keep_p else -sxi[j]
+            xi = next_direction(sxi[j], steps, gamma, fresh, keep_p)
             ox = sx[j]
             oz = sz[j]
             nx_ = ox + sigx * xi
@@ -315,12 +423,7 @@ def advance(prm, cnt, n_ticks,
             cx_ = ox + lam * dx
             cz_ = oz + lam * dz
             # free-volume-conserving walls: influence divided by the kernel's coverage
-            inv_phi = 1.0
-            if ntab > 1:
-                tt = (cx_ - tx0) / tdx
-                kt = min(max(int(math.floor(tt)), 0), ntab - 2)
-                ft = min(max(tt - kt, 0.0), 1.0)
-                inv_phi = 1.0 / ((1.0 - ft) * phi_tab[kt] + ft * phi_tab[kt + 1])
+            inv_phi = coverage_inverse(cx_, tx0, tdx, phi_tab)
             # ---- particles --------------------------------------------------------------
             if npart > 0:
                 ix_lo = int(math.floor((cx_ - rh - skin - x0) / cell))
@@ -343,44 +446,33 @@ def advance(prm, cnt, n_ticks,
                                 continue
                             w *= inv_phi
                             cnt[C_UPDATES] += 1
-                            oxp = px[i]
-                            ozp = pz[i]
-                            npx = oxp - w * dx
-                            npz = ozp - w * dz
-                            if npx < x0 or npx > x1:
-                                if walls == WALLS_OPEN:
-                                    status[i] = P_SIDE
-                                    px[i] = npx
-                                    pz[i] = npz
-                                    continue
-                                if npx < x0:
-                                    npx = 2.0 * x0 - npx
-                                if npx > x1:
-                                    npx = 2.0 * x1 - npx
-                                npx = min(max(npx, x0), x1)
-                            m = moved[i] + abs(npx - oxp) + abs(npz - ozp)
-                            moved[i] = m
+                            m = _place(i, px[i], pz[i], px[i] - w * dx, pz[i] - w * dz,
+                                       x0, x1, z0, walls, rp.open_lo, rp.open_hi, t_mid,
+                                       px, pz, status, moved, track_slot, levels, lev_next,
+                                       cross_x, cross_t, exit_x, exit_t)
                             if m > maxmoved:
                                 maxmoved = m
-                            ts = track_slot[i]
-                            if ts >= 0:
-                                k = lev_next[ts]
-                                while k >= 0 and npz < levels[k]:
-                                    if ozp >= levels[k]:
-                                        f = (ozp - levels[k]) / (ozp - npz)
-                                        cross_x[ts, k] = oxp + f * (npx - oxp)
-                                    else:
-                                        cross_x[ts, k] = npx
-                                    cross_t[ts, k] = t_mid
-                                    k -= 1
-                                lev_next[ts] = k
-                            if npz < z0:
-                                status[i] = P_ORIFICE
-                                f = (ozp - z0) / (ozp - npz)
-                                exit_x[i] = oxp + f * (npx - oxp)
-                                exit_t[i] = t_mid
-                            px[i] = npx
-                            pz[i] = npz
+            # ---- relaxation of the grains around the spot (packing constraints) -------
+            if rp.on == 1 and npart > 0:
+                ns = srel[j, 2] + 1.0
+                if ns >= rp.every or remove or nz_ >= z1:
+                    nb = relax_block(x0, x1, z0, z1, rp, srel[j, 0], srel[j, 1], cx_, cz_,
+                                     px, pz, diam, status, cell_start, cell_idx, cell, ncx,
+                                     ncz, skin, blk, old)
+                    for q in range(nb):
+                        i = blk[q]
+                        m = _place(i, old[q, 0], old[q, 1], px[i], pz[i], x0, x1, z0, walls,
+                                   rp.open_lo, rp.open_hi, t_mid, px, pz, status, moved,
+                                   track_slot, levels, lev_next, cross_x, cross_t, exit_x,
+                                   exit_t)
+                        if m > maxmoved:
+                            maxmoved = m
+                    cnt[C_RELAXATIONS] += 1
+                    cnt[C_RELAXED] += nb
+                    ns = 0.0
+                    srel[j, 0] = nx_
+                    srel[j, 1] = nz_
+                srel[j, 2] = ns
             # ---- probes (frozen particles on the measurement grid) ------------------------
             if use_probes:
                 jx_lo = max(int(math.ceil((cx_ - rh - pxo) / ph)), 0)
@@ -424,6 +516,9 @@ def advance(prm, cnt, n_ticks,
                 sx[j] = sx[last]
                 sz[j] = sz[last]
                 sxi[j] = sxi[last]
+                srel[j, 0] = srel[last, 0]
+                srel[j, 1] = srel[last, 1]
+                srel[j, 2] = srel[last, 2]
                 cnt[C_NACTIVE] = last
                 cnt[C_REMOVED] += 1
                 continue
@@ -451,25 +546,19 @@ def advance(prm, cnt, n_ticks,
 def spot_walks(n_walks, n_steps, sig, gamma, steps, seed_):
     """Horizontal positions of ``n_walks`` free spot walks after each of ``n_steps`` steps.
 
-    The same step rule as :func:`advance` (no walls): ``xi_{n+1} = gamma xi_n +
-    sqrt(1 - gamma^2) eta`` (Gaussian) or keep the sign with probability ``(1+gamma)/2``
-    (binary); step ``sig * xi``; ``xi_0`` stationary.
+    The step rule of :func:`advance` (no walls; :func:`first_direction`,
+    :func:`next_direction`): ``xi_{n+1} = gamma xi_n + sqrt(1 - gamma^2) eta`` (Gaussian)
+    or keep the sign with probability ``(1+gamma)/2`` (binary); step ``sig * xi``;
+    ``xi_0`` stationary.
     """
     np.random.seed(seed_)
     out = np.empty((n_walks, n_steps))
-    fresh = math.sqrt(1.0 - gamma * gamma)
-    keep_p = 0.5 * (1.0 + gamma)
+    fresh, keep_p = persistence(gamma)
     for k in range(n_walks):
-        if steps == STEPS_GAUSSIAN:
-            xi = np.random.standard_normal()
-        else:
-            xi = 1.0 if np.random.random() < 0.5 else -1.0
+        xi = first_direction(steps)
         x = 0.0
         for n in range(n_steps):
-            if steps == STEPS_GAUSSIAN:
-                xi = gamma * xi + fresh * np.random.standard_normal()
-            else:
-                xi = xi if np.random.random() < keep_p else -xi
+            xi = next_direction(xi, steps, gamma, fresh, keep_p)
             x += sig * xi
             out[k, n] = x
     return out

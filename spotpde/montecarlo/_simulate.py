@@ -44,6 +44,7 @@ from . import _mc_kernels as K
 from ..grid import Grid
 from ..parameters import Orifice, Spots
 from ._particles import blob, lattice, random_packing
+from ._relax import Relax, draw_diameters, relax_params
 
 STEPS = ("gaussian", "binary")
 
@@ -150,6 +151,8 @@ class MCResult:
         counters: injected spots, spot steps, particle updates, cell-list rebuilds.
         wall_time, cpu_time: wall-clock and CPU seconds spent in the numba loop.
         walls: the wall treatment (``"renormalise"`` or ``"truncate"``).
+        relax: the resolved :class:`~spotpde.montecarlo.Relax` (``None``: grains do not
+            interact). diameters: ``(N,)`` grain diameters in d.
     """
 
     grid: Grid
@@ -182,6 +185,8 @@ class MCResult:
     wall_time: float = 0.0
     cpu_time: float = 0.0
     walls: str = "renormalise"
+    relax: Relax | None = None
+    diameters: np.ndarray | None = None
 
     @property
     def performance(self) -> dict:
@@ -213,7 +218,8 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
              probes: bool = True, batches: int = 20, records: int = 20,
              levels: np.ndarray | None = None, skin: float | None = None,
              cutoff: float = CUTOFF, progress: Callable[[float], None] | None = None,
-             walls: str = "renormalise") -> MCResult:
+             walls: str = "renormalise", relax: Relax | dict | None = None,
+             diameters: np.ndarray | None = None) -> MCResult:
     """Run the discrete spot model in the box of ``grid``.
 
     Args:
@@ -247,6 +253,13 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
             ``x_s + lam dx`` (tabulated, ``_walls.coverage_table``), so a spot step
             displaces ``V1 dR``; ``"truncate"``: the kernel beyond a wall displaces
             nothing. Identical with open walls (docs/walls.md).
+        relax: packing constraints (docs/packing.md): ``None`` (default, grains do not
+            interact), a :class:`~spotpde.montecarlo.Relax` or a dict of its fields. The
+            grains near each spot are relaxed by soft-core repulsion after its steps, with
+            the block's centre of mass held; reflecting walls repel, and so does the floor
+            beside ``relax.opening`` if one is given.
+        diameters: ``(N,)`` grain diameters in d (with ``relax``; default: drawn from
+            ``relax.polydispersity`` and ``relax.distribution`` with ``seed``).
 
     Returns:
         :class:`MCResult`.
@@ -285,6 +298,7 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
         problems.append(f'walls: must be one of "renormalise", "truncate", got {walls!r}')
     if problems:
         raise ValueError("; ".join(problems))
+    relax = Relax.of(relax)
     kp = kernel_params(kernel, cutoff)
     if t_end is None:
         t_end = float(n_spots) / Q0
@@ -336,6 +350,19 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
     status = np.zeros(n, np.int64)
     status[pz < z0] = K.P_ORIFICE
     moved = np.zeros(n)
+    if diameters is None:
+        diam = (np.ones(n) if relax is None else
+                draw_diameters(n, relax.polydispersity, relax.distribution, seed))
+    else:
+        diam = np.asarray(diameters, dtype=float).reshape(-1).copy()
+        if diam.shape != (n,) or not np.all(diam > 0):
+            raise ValueError(f"diameters: need {n} positive values, one per particle, "
+                             f"got shape {np.shape(diameters)}")
+    if relax is not None:
+        relax = relax.resolved(_relax_reach(kp))
+    rp = relax_params(relax, diam, orifice.x, grid.walls == "reflecting")
+    blk = np.zeros(max(n, 1), np.int64)
+    old = np.zeros((max(n, 1), 2))
     cell_start = np.zeros(ncx * ncz + 1, np.int64)
     cell_idx = np.zeros(max(n, 1), np.int64)
     if n:
@@ -375,6 +402,7 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
     sx = np.zeros(cap)
     sz = np.zeros(cap)
     sxi = np.zeros(cap)
+    srel = np.zeros((cap, 3))
     cnt = np.zeros(K.NC, np.int64)
     cnt[K.C_PENDING] = -1
 
@@ -388,12 +416,13 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
         c0 = time.process_time()
         K.advance(prm, cnt, todo, sx, sz, sxi, px, pz, status, moved, cell_start, cell_idx,
                   track_slot, tpos, rec_ticks, levels, lev_next, cross_x, cross_t, exit_x, exit_t,
-                  probe, rho_hist, phi_tab)
+                  probe, rho_hist, phi_tab, rp, diam, srel, blk, old)
         wall += time.perf_counter() - t0
         cpu += time.process_time() - c0
         if cnt[K.C_PENDING] >= 0:  # spot arrays full: grow and carry on
             cap *= 2
             sx, sz, sxi = (np.concatenate([a, np.zeros(a.size)]) for a in (sx, sz, sxi))
+            srel = np.concatenate([srel, np.zeros_like(srel)])
         if progress is not None:
             progress(cnt[K.C_TICK] / n_ticks)
 
@@ -409,9 +438,20 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
         batch_ticks=batch_ticks,
         counters={"spots_injected": int(cnt[K.C_INJECTED]), "spot_steps": int(cnt[K.C_STEPS]),
                   "particle_updates": int(cnt[K.C_UPDATES]),
-                  "cell_rebuilds": int(cnt[K.C_REBUILDS]), "spots_removed": int(cnt[K.C_REMOVED])},
-        wall_time=wall, cpu_time=cpu, walls=walls,
+                  "cell_rebuilds": int(cnt[K.C_REBUILDS]), "spots_removed": int(cnt[K.C_REMOVED]),
+                  "relaxations": int(cnt[K.C_RELAXATIONS]), "grains_relaxed": int(cnt[K.C_RELAXED])},
+        wall_time=wall, cpu_time=cpu, walls=walls, relax=relax, diameters=diam,
     )
+
+
+def _relax_reach(kp: KernelParams) -> float:
+    """Distance (d) at which the kernel falls to 1 % of ``w(0)``, along its longer axis."""
+    size = max(kp.size, kp.size_v)
+    if kp.shape == K.SHAPE_UNIFORM:
+        return size
+    if kp.shape == K.SHAPE_GAUSSIAN:
+        return math.sqrt(2.0 * math.log(100.0)) * size
+    return math.log(100.0) * size
 
 
 def from_case(case, *, particles="lattice", spacing: float = 1.0, **kwargs) -> MCResult:

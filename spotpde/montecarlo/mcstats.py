@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Callable, Iterable, Mapping, Sequence
+from typing import Callable, Iterable, Mapping
 
 import numpy as np
 from scipy import stats
@@ -309,10 +309,3 @@ def t_limit(replicas: int, level: float = 0.01) -> float:
     if replicas < 2:
         raise ValueError(f"replicas: need at least 2, got {replicas}")
     return float(stats.t.ppf(1 - 0.5 * level, replicas - 1))
-
-
-def summary_row(values: Sequence[float]) -> str:
-    """``"mean +- se (sd s, R replicas)"`` for a list of replica values (reports, docs)."""
-    v = np.asarray(values, dtype=float)
-    m, se = replica_mean(v)
-    return f"{m:.4g} +- {se:.2g} (sd {v.std(ddof=1):.2g}, {v.size} replicas)"

@@ -34,8 +34,8 @@ def add_to_result(case, ds):
     Local uniform-flow approximation: the pair sees the flow at the point as uniform, with
     the single-particle lengths ``b_p = D_p / |u_z|`` of the case's fields there (so
     ``B = 2 b_p (1 - C)`` in mean field, a full tensor where ``D_xz != 0``; the passage
-    tensor is rescaled component by component by the ratio of the local ``b_p`` to its
-    uniform-flow value). Variables get the prefix ``pair_`` (dims ``pair_fall``,
+    tensor is rescaled by the ratios of the local ``b_p`` to its uniform-flow value,
+    ``relative_tensor``). Variables get the prefix ``pair_`` (dims ``pair_fall``,
     ``pair_frame``, ``pair_Z``, ``pair_X``), attributes too (``pair_mean_fall``, ...).
     """
     from ..fields.kernels import Uniform

@@ -104,9 +104,14 @@ def relative_tensor(kernel, b, rule=0.5, b_par=0.0, diffusivity="passage", X=0.0
 
     ``diffusivity="mean-field"``: :func:`mean_field_tensor`. ``"passage"``:
     ``spotpde.fields._passage.length_tensor(kernel, b, b_par, rule, diffusivity="passage",
-    separation=(X, Z))``; with ``b_p`` (local single-particle lengths) each component is
-    rescaled by ``b_p^ab / b_p,uniform^ab`` (the local uniform-flow approximation), or,
-    where the uniform value vanishes, takes the mean-field form ``2 b_p^ab (1 - C)``.
+    separation=(X, Z))``. With ``b_p`` (local single-particle lengths; the local
+    uniform-flow approximation) the tensor is the congruence ``S B S``,
+    ``S = diag(sqrt(b_p^xx / b_p,uniform^xx), sqrt(b_p^zz / b_p,uniform^zz))``: ``B^xx``
+    and ``B^zz`` scale by their ratios, the passage cross term ``B^xz`` (not zero off the
+    axes, although ``b_p,uniform^xz = 0``) by their geometric mean, so ``B`` stays positive
+    semi-definite and ``b_p = s b_p,uniform`` gives ``s B``; the local ``b_p^xz`` adds its
+    mean-field form ``2 b_p^xz (1 - C)``. A component whose uniform diagonal value
+    vanishes takes the mean-field form ``2 b_p^ab (1 - C)``.
     """
     if diffusivity not in DIFFUSIVITIES:
         raise ValueError(f"diffusivity must be one of {DIFFUSIVITIES}, got {diffusivity!r}")
@@ -121,11 +126,12 @@ def relative_tensor(kernel, b, rule=0.5, b_par=0.0, diffusivity="passage", X=0.0
         return B
     far = _passage.length_tensor(kernel, b, b_par, rule, diffusivity="passage")
     mf = mean_field_tensor(kernel, b, b_par, X, Z, b_p=b_p)
-    out = {}
-    for k in ("xx", "xz", "zz"):
-        uniform = float(np.asarray(far.get(k, 0.0)).ravel()[0])
-        out[k] = B[k] * (b_p[k] / uniform) if uniform > 0 else mf[k]
-    return out
+    ratio = {k: b_p[k] / float(far[k]) if float(far[k]) > 0 else None for k in ("xx", "zz")}
+    cross = mf["xz"]
+    if ratio["xx"] is not None and ratio["zz"] is not None:
+        cross = cross + B["xz"] * math.sqrt(max(ratio["xx"], 0.0) * max(ratio["zz"], 0.0))
+    return {"xx": mf["xx"] if ratio["xx"] is None else B["xx"] * ratio["xx"], "xz": cross,
+            "zz": mf["zz"] if ratio["zz"] is None else B["zz"] * ratio["zz"]}
 
 
 def mean_fall_1d(B, contact=1.0, separation=2.0) -> float:

@@ -168,12 +168,6 @@ class _Assembly:
         return out
 
 
-def _expand(g, keep, n, shape):
-    out = np.zeros(n)
-    out[keep] = g
-    return out.reshape(shape)
-
-
 def _reachable(M, seeds):
     """Boolean mask of the nodes reachable from ``seeds`` along ``j -> i`` where
     ``M_ij != 0`` (breadth-first search, :mod:`scipy.sparse.csgraph`)."""
