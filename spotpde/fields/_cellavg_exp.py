@@ -126,6 +126,18 @@ def _far_split(p, hmax, d):
 
 
 @njit(cache=True)
+def _rules(p, hmax, d, n_face):
+    """The quadrature rules of a cell average in ``d`` dimensions: sub-cells per axis, the
+    far and middle Gauss-Legendre rules (nodes, weights) and the face rule of order
+    ``n_face`` for cells next to the cusp."""
+    nsub, nfar = _far_split(p, hmax, d)
+    xf, wf = _gl_points(nfar)
+    xm, wm = _gl_points(max(nfar, 12))
+    xi, wi = _gl_points(n_face)
+    return nsub, xf, wf, xm, wm, xi, wi
+
+
+@njit(cache=True)
 def exp_cell_avg_2d(mz, mx, hz, hx, p):
     """Cell averages of exp(-p sqrt(X^2 + Z^2)) on cells (k, i), 0 <= k <= mz, 0 <= i <= mx.
 
@@ -134,10 +146,7 @@ def exp_cell_avg_2d(mz, mx, hz, hx, p):
     """
     out = np.zeros((mz + 1, mx + 1))
     hmax = max(hx, hz)
-    nsub, nfar = _far_split(p, hmax, 2)
-    xf, wf = _gl_points(nfar)
-    xm, wm = _gl_points(max(nfar, 12))
-    xi, wi = _gl_points(14)
+    nsub, xf, wf, xm, wm, xi, wi = _rules(p, hmax, 2, 14)
     for k in range(mz + 1):
         z0 = (k - 0.5) * hz
         z1 = (k + 0.5) * hz
@@ -180,10 +189,7 @@ def exp_cell_avg_3d(mz, mx, hz, hx, p):
     """As :func:`exp_cell_avg_2d` for exp(-p sqrt(X^2 + Y^2 + Z^2)); returns (k, j, i) octant."""
     out = np.zeros((mz + 1, mx + 1, mx + 1))
     hmax = max(hx, hz)
-    nsub, nfar = _far_split(p, hmax, 3)
-    xf, wf = _gl_points(nfar)
-    xm, wm = _gl_points(max(nfar, 12))
-    xi, wi = _gl_points(12)
+    nsub, xf, wf, xm, wm, xi, wi = _rules(p, hmax, 3, 12)
     for k in range(mz + 1):
         z0 = (k - 0.5) * hz
         z1 = (k + 0.5) * hz
