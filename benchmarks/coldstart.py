@@ -25,7 +25,8 @@ the baseline against ``import spotpde``, ``import spotpde`` with the flagship ca
 validated (``spotpde.load_case``: what ``spotpde check`` and ``run`` do before anything
 else) and with ``spotpde.run`` resolved (the pipeline and its netCDF writer), each with
 the heavy optional libraries it has imported (numba, pyfftw, dask, matplotlib, py-pde
-must not be among them: they load when a stage uses them).
+must not be among them, nor lmfit, emcee or spotpde's tracks, observables and
+calibration: they load when a stage or ``spotpde fit`` uses them).
 
 ``--compile`` then compiles the flagship's WENO5 2D tracer kernel (one thread) in this
 process with an empty cache, and prints its CPU time split by numba compilation and by
@@ -59,7 +60,8 @@ IMPORTS = {
     "import spotpde; spotpde.run": "import spotpde; spotpde.run",
 }
 #: Libraries a stage imports when it needs them, never ``import spotpde``.
-HEAVY = ("numba", "pyfftw", "dask", "distributed", "matplotlib", "pde")
+HEAVY = ("numba", "pyfftw", "dask", "distributed", "matplotlib", "pde", "lmfit", "emcee",
+         "spotpde.tracks", "spotpde.observables", "spotpde.calibration")
 
 
 def import_times(repeat: int) -> None:
@@ -73,8 +75,8 @@ def import_times(repeat: int) -> None:
             t0 = time.perf_counter()
             subprocess.run([sys.executable, "-c", code], check=True, env=env, cwd=ROOT)
             times[name].append(time.perf_counter() - t0)
-    probe = ("import sys\n{}\nprint(','.join(sorted({{m.split('.')[0] for m in sys.modules}}"
-             " & set({!r}))))")
+    probe = ("import sys\n{}\nprint(','.join(sorted({{'.'.join(m.split('.')[:k]) for m in "
+             "sys.modules for k in (1, 2)}} & set({!r}))))")
     base = min(times["import numpy, scipy, xarray"])
     print(f"imports in fresh interpreters ({repeat} each, interleaved; load average "
           f"{os.getloadavg()[0]:.1f}): best / median seconds, best against the baseline")
