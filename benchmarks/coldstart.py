@@ -20,12 +20,20 @@ Baseline, in the same run: ``python -c "import numpy, scipy, xarray"``, the bare
 interpreter with the libraries every run needs, so the start-up figures can be read
 against what the machine gives a process that does nothing of its own.
 
+Imports, first (``--imports N`` fresh interpreters each, interleaved, best and median):
+the baseline against ``import spotpde``, ``import spotpde`` with the flagship case
+validated (``spotpde.load_case``: what ``spotpde check`` and ``run`` do before anything
+else) and with ``spotpde.run`` resolved (the pipeline and its netCDF writer), each with
+the heavy optional libraries it has imported (numba, pyfftw, dask, matplotlib, py-pde
+must not be among them, nor lmfit, emcee or spotpde's tracks, observables and
+calibration: they load when a stage or ``spotpde fit`` uses them).
+
 ``--compile`` then compiles the flagship's WENO5 2D tracer kernel (one thread) in this
 process with an empty cache, and prints its CPU time split by numba compilation and by
 LLVM module (optimisation and machine code): where a cold run's compile time goes.
 
-Usage: ``python benchmarks/coldstart.py [--cold N] [--warm N] [--compile]`` (about a
-minute per cold run here).
+Usage: ``python benchmarks/coldstart.py [--cold N] [--warm N] [--imports N] [--compile]``
+(about a minute per cold run here).
 """
 
 from __future__ import annotations
@@ -41,6 +49,44 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 CASE = ROOT / "cases" / "quasi2d_layers.toml"
+
+
+#: Statements timed in fresh interpreters (``--imports``), the baseline first.
+IMPORTS = {
+    "import numpy, scipy, xarray": "import numpy, scipy, xarray",
+    "import spotpde": "import spotpde",
+    "import spotpde; spotpde.load_case(flagship)":
+        f"import spotpde; spotpde.load_case({str(CASE)!r})",
+    "import spotpde; spotpde.run": "import spotpde; spotpde.run",
+}
+#: Libraries a stage imports when it needs them, never ``import spotpde``.
+HEAVY = ("numba", "pyfftw", "dask", "distributed", "matplotlib", "pde", "lmfit", "emcee",
+         "spotpde.tracks", "spotpde.observables", "spotpde.calibration")
+
+
+def import_times(repeat: int) -> None:
+    """Each statement of :data:`IMPORTS` in ``repeat`` fresh interpreters (interleaved, so
+    that all see the same load): best and median wall time of the process, and the heavy
+    libraries it imported."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    times = {name: [] for name in IMPORTS}
+    for _ in range(repeat):
+        for name, code in IMPORTS.items():
+            t0 = time.perf_counter()
+            subprocess.run([sys.executable, "-c", code], check=True, env=env, cwd=ROOT)
+            times[name].append(time.perf_counter() - t0)
+    probe = ("import sys\n{}\nprint(','.join(sorted({{'.'.join(m.split('.')[:k]) for m in "
+             "sys.modules for k in (1, 2)}} & set({!r}))))")
+    base = min(times["import numpy, scipy, xarray"])
+    print(f"imports in fresh interpreters ({repeat} each, interleaved; load average "
+          f"{os.getloadavg()[0]:.1f}): best / median seconds, best against the baseline")
+    for name, code in IMPORTS.items():
+        heavy = subprocess.run([sys.executable, "-c", probe.format(code, HEAVY)], check=True,
+                               env=env, cwd=ROOT, capture_output=True, text=True)
+        got = heavy.stdout.strip() or "none"
+        t = sorted(times[name])
+        print(f"  {name:45s} {t[0]:6.2f} / {t[len(t) // 2]:6.2f}  {t[0] / base:5.2f}x  "
+              f"heavy libraries: {got}")
 
 
 def _children_cpu() -> float:
@@ -150,7 +196,11 @@ def main() -> None:
     parser.add_argument("--compile", action="store_true",
                         help="also break down the compilation of the tracer kernel")
     parser.add_argument("--keep", type=Path, help="write the cold run's output here")
+    parser.add_argument("--imports", type=int, default=5,
+                        help="fresh interpreters per import statement (0: skip)")
     args = parser.parse_args()
+    if args.imports:
+        import_times(args.imports)
     t0 = time.perf_counter()
     subprocess.run([sys.executable, "-c", "import numpy, scipy, xarray"], check=True)
     base = time.perf_counter() - t0

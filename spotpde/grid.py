@@ -3,7 +3,8 @@
 Array order follows the result Dataset: ``(z, x)`` in 2D and ``(z, y, x)`` in 3D, so
 ``field[k, i]`` is the cell centred at ``(x[i], z[k])``. Cell ``k`` spans
 ``[z0 + k h, z0 + (k + 1) h)``; the orifice lies on the bottom face ``z = z0``.
-In 3D the ``y`` extent equals the ``x`` extent (docs/interface.md).
+In 3D the ``y`` extent is ``y_range``, by default the ``x`` extent (a square floor);
+a thin slab has a short one (docs/cases.md, ``domain.y``).
 
 Axisymmetric grids (``coordinates="axisymmetric"``, ``dims = 2``) are the ``(r, z)``
 half-plane of a cylindrical silo: ``x_range = (0, a)`` is the radius, the axis is
@@ -143,7 +144,7 @@ class Grid:
 
     Args:
         dims: 2 for ``(x, z)``, 3 for ``(x, y, z)``.
-        x: horizontal extent ``(x0, x1)`` in d (3D: also the ``y`` extent).
+        x: horizontal extent ``(x0, x1)`` in d.
         z: vertical extent ``(z0, z1)`` in d; the orifice is at ``z0``.
         spacing: cell size ``h`` in d; must divide both extents.
         walls: ``"reflecting"`` (no flux through the side walls) or ``"open"``; on an
@@ -151,6 +152,9 @@ class Grid:
         coordinates: ``"cartesian"`` or ``"axisymmetric"`` (``dims = 2``, ``x = (0, a)``
             the radius).
         hopper: optional :class:`Hopper`: the material is the wedge / cone it bounds.
+        y_range: 3D only: the ``y`` extent ``(y0, y1)`` in d (the depth of a slab);
+            ``None`` gives the ``x`` extent (a square floor). Stored as a tuple in 3D,
+            ``None`` in 2D.
     """
 
     dims: int
@@ -160,6 +164,7 @@ class Grid:
     walls: str = "reflecting"
     coordinates: str = "cartesian"
     hopper: Hopper | None = None
+    y_range: tuple[float, float] | None = None
 
     def __post_init__(self):
         if self.dims not in (2, 3):
@@ -185,7 +190,15 @@ class Grid:
         h = float(self.spacing)
         if not (h > 0 and np.isfinite(h)):
             raise ValueError(f"spacing must be a finite number > 0, got {self.spacing!r}")
-        for name, (a, b) in (("x", self.x_range), ("z", self.z_range)):
+        if self.y_range is not None and self.dims != 3:
+            raise ValueError(f"y_range: only for dims = 3, got {tuple(self.y_range)!r} "
+                             f"with dims = {self.dims}")
+        if self.dims == 3:
+            y = self.x_range if self.y_range is None else self.y_range
+            object.__setattr__(self, "y_range", (float(y[0]), float(y[1])))
+        extents = (("x", self.x_range), ("z", self.z_range)) + \
+            ((("y", self.y_range),) if self.dims == 3 else ())
+        for name, (a, b) in extents:
             if not (np.isfinite(a) and np.isfinite(b) and b > a):
                 raise ValueError(f"{name} range must be increasing and finite, got {(a, b)!r}")
             n = (b - a) / h
@@ -200,8 +213,15 @@ class Grid:
     # -- sizes -----------------------------------------------------------------
     @property
     def nx(self) -> int:
-        """Number of cells along x (3D: also along y)."""
+        """Number of cells along x."""
         return int(round((self.x_range[1] - self.x_range[0]) / self.spacing))
+
+    @property
+    def ny(self) -> int:
+        """Number of cells along y (3D; 1 in 2D)."""
+        if self.dims != 3:
+            return 1
+        return int(round((self.y_range[1] - self.y_range[0]) / self.spacing))
 
     @property
     def nz(self) -> int:
@@ -210,8 +230,8 @@ class Grid:
 
     @property
     def shape(self) -> tuple[int, ...]:
-        """Array shape: ``(nz, nx)`` or ``(nz, ny, nx)`` with ``ny == nx``."""
-        return (self.nz, self.nx) if self.dims == 2 else (self.nz, self.nx, self.nx)
+        """Array shape: ``(nz, nx)`` or ``(nz, ny, nx)``."""
+        return (self.nz, self.nx) if self.dims == 2 else (self.nz, self.ny, self.nx)
 
     @property
     def axisymmetric(self) -> bool:
@@ -324,8 +344,8 @@ class Grid:
 
     @cached_property
     def y(self) -> np.ndarray:
-        """Cell-centre y coordinates in d (3D; the same extent as x)."""
-        return self.x.copy()
+        """Cell-centre y coordinates in d (3D)."""
+        return self.y_range[0] + (np.arange(self.ny) + 0.5) * self.spacing
 
     @cached_property
     def z(self) -> np.ndarray:
@@ -335,7 +355,8 @@ class Grid:
     @property
     def y_centre(self) -> float:
         """Middle of the y extent in d (3D; the default y of the orifice and tracer)."""
-        return 0.5 * (self.x_range[0] + self.x_range[1])
+        y = self.y_range if self.y_range is not None else self.x_range
+        return 0.5 * (y[0] + y[1])
 
     @property
     def r(self) -> np.ndarray:
@@ -368,8 +389,8 @@ class Grid:
         if self.axisymmetric:
             return pde.CylindricalSymGrid(self.x_range[1], self.z_range, (self.nx, self.nz))
 
-        bounds = [self.x_range] + ([self.x_range] if self.dims == 3 else []) + [self.z_range]
-        shape = [self.nx] + ([self.nx] if self.dims == 3 else []) + [self.nz]
+        bounds = [self.x_range] + ([self.y_range] if self.dims == 3 else []) + [self.z_range]
+        shape = [self.nx] + ([self.ny] if self.dims == 3 else []) + [self.nz]
         return pde.CartesianGrid(bounds, shape)
 
     def to_pde_data(self, a: np.ndarray) -> np.ndarray:

@@ -17,6 +17,9 @@ import numpy as np
 Coefficient = Union[float, np.ndarray]
 
 PROFILES = ("uniform", "gaussian")
+#: Shapes of a 3D orifice: a disk (or radially Gaussian spot), or a slot across the
+#: whole depth y (the profile in x as in 2D, uniform in y: a thin slab's orifice).
+ORIFICE_SHAPES = ("disk", "slot")
 SPOT_MODES = ("steady", "transient")
 TRACER_MODELS = ("spot", "void")
 
@@ -29,11 +32,13 @@ class Orifice:
         x: centre in d.
         width: 0 for a point source; slot width W (``uniform``) or two standard
             deviations (``gaussian``). In 3D the orifice is a disk of diameter
-            ``width`` (or a radially Gaussian source) centred at ``(x, y)``.
+            ``width`` (or a radially Gaussian source) centred at ``(x, y)``, or with
+            ``shape = "slot"`` a slot of that width across the whole depth in y.
         profile: ``"uniform"`` or ``"gaussian"``.
         rate: Q0 in spots per unit time; a constant, or for transient runs a
             callable ``Q0(t)``.
-        y: 3D only: centre in y (default: the middle of the y extent).
+        y: 3D only: centre in y (default: the middle of the y extent; unused by a slot).
+        shape: 3D only: ``"disk"`` or ``"slot"`` (:data:`ORIFICE_SHAPES`).
     """
 
     x: float = 0.0
@@ -41,6 +46,7 @@ class Orifice:
     profile: str = "uniform"
     rate: Union[float, Callable[[float], float]] = 1.0
     y: float | None = None
+    shape: str = "disk"
 
     def rate_at(self, t: float) -> float:
         """Q0(t) in spots per unit time."""

@@ -153,6 +153,10 @@ def test_layers_and_3d_blob_default_y():
     case3 = load_case(small(domain={"dims": 3}))
     assert case3.grid.shape == (16, 16, 16)
     assert case3.tracer.start.y == case3.grid.y_centre
+    slab = load_case(small(domain={"dims": 3, "y": [0.0, 3.0]}))
+    assert slab.grid.shape == (16, 6, 16) and slab.grid.y_range == (0.0, 3.0)
+    assert slab.tracer.start.y == 1.5 == slab.grid.y_centre
+    assert tomllib.loads(slab.to_toml())["domain"]["y"] == [0.0, 3.0]
 
 
 def test_void_model_fixes_rule_to_one():
@@ -204,6 +208,23 @@ def test_dump_toml_round_trips_scalars(s, f, i, b):
     ({"orifice": {"x": 3.5}}, "orifice.x: the slot [x - width/2, x + width/2] must lie"),
     ({"orifice": {"x": 9.0, "width": 0.0}}, "orifice.x: the centre must lie on the floor"),
     ({"orifice": {"y": 0.0}}, "orifice.y: is only used when domain.dims = 3"),
+    ({"domain": {"y": [-2.0, 2.0]}}, "domain.y: is only used when domain.dims = 3"),
+    ({"domain": {"dims": 3, "y": [2.0, -2.0]}}, "domain.y: must be increasing"),
+    ({"domain": {"dims": 3, "y": [-2.0, 2.3]}}, "domain.y: must be a whole number of cells "
+                                                "of domain.spacing = 0.5"),
+    ({"domain": {"dims": 3, "y": [-0.5, 0.5]}}, "domain.y: must be at least 4 cells of "
+                                                "domain.spacing = 0.5 deep"),
+    ({"domain": {"dims": 3, "y": [-2.0, math.inf]}}, "domain.y[1]: must be a finite number"),
+    ({"domain": {"dims": 3, "y": [-2.0, 2.0]}, "orifice": {"y": 1.5}},
+     "orifice.y: the orifice must lie on the floor, y in [-2.0, 2.0] (the domain.y extent)"),
+    ({"domain": {"dims": 3, "y": [-2.0, 2.0]},
+      "tracer": {"start": {"x": 0.0, "y": 3.0, "z": 5.0, "width": 1.0}}},
+     "tracer.start.y: must lie in [-2.0, 2.0] (the domain.y extent)"),
+    ({"orifice": {"shape": "slot"}}, "orifice.shape: is only used when domain.dims = 3"),
+    ({"domain": {"dims": 3}, "orifice": {"shape": "square"}},
+     'orifice.shape: must be one of "disk", "slot", got "square"'),
+    ({"domain": {"dims": 3}, "orifice": {"shape": "slot", "y": 0.0}},
+     'orifice.y: is not used by orifice.shape = "slot"'),
     ({"orifice": {"profile": "gaussian", "width": 0.0}}, "orifice.width: must be > 0"),
     ({"orifice": {"profile": "square"}}, 'orifice.profile: must be one of "uniform", '
                                          '"gaussian", got "square"'),
@@ -309,6 +330,11 @@ def test_memory_estimate_counts_tracer_frames_and_3d():
     assert cases.estimate_bytes(more) > cases.estimate_bytes(base) + 8 * 16 * 16 * 190
     three = cases.validate(small(domain={"dims": 3}))
     assert cases.estimate_bytes(three) > 10 * cases.estimate_bytes(base)
+    # domain.y absent is the domain.x extent; a slab a quarter as deep needs less
+    square = cases.validate(small(domain={"dims": 3, "y": [-4.0, 4.0]}))
+    assert cases.estimate_bytes(square) == cases.estimate_bytes(three)
+    slab = cases.validate(small(domain={"dims": 3, "y": [-1.0, 1.0]}))
+    assert cases.estimate_bytes(slab) < 0.8 * cases.estimate_bytes(three)
     assert cases.available_memory() > 0
 
 

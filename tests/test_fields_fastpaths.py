@@ -193,13 +193,19 @@ def test_coverage_of_a_rectangular_2d_silo_is_the_2d_sum_it_replaces():
                                            np.broadcast_to(want, grid.shape), rtol=0, atol=1e-15)
 
 
-def test_box_convolutions_and_their_derivatives_are_the_whole_grid_ones():
+@pytest.mark.parametrize("batch_bytes", [None, 1])
+def test_box_convolutions_and_their_derivatives_are_the_whole_grid_ones(batch_bytes,
+                                                                        monkeypatch):
     """Batched box convolutions (boxes reaching one ghost cell beyond the grid, stencil
-    spectra cached) equal the full convolution of the zero-extended source cut to the
-    grid, and ``add_derivative`` equals the whole-grid derivative of that sum."""
+    spectra cached; with ``batch_bytes = 1`` each source its own batch) equal the full
+    convolution of the zero-extended source cut to the grid, and ``add_derivative``
+    equals the whole-grid derivative of that sum."""
     import scipy.signal
 
     from spotpde.fields import _strips
+
+    if batch_bytes is not None:
+        monkeypatch.setattr(_strips, "BATCH_BYTES", batch_bytes)
 
     rng = np.random.default_rng(4)
     shape, h = (17, 23), 0.3
@@ -209,7 +215,9 @@ def test_box_convolutions_and_their_derivatives_are_the_whole_grid_ones():
     requests = [(("u", float(i)), box, rng.normal(size=tuple(s.stop - s.start for s in box)), 1)
                 for i, box in enumerate(boxes)]
     for _ in range(2):                              # the second call: cached spectra
-        parts = _strips.box_convolutions(requests, {1: stencil}, shape)
+        parts = {}
+        for name, dst, values in _strips.box_convolutions(requests, {1: stencil}, shape):
+            parts.setdefault(name, []).append((dst, values))
         for name, box, src, _ in requests:
             big = np.zeros((21, 27))                # the grid with 2 ghost cells a side
             big[tuple(slice(s.start + 2, s.stop + 2) for s in box)] = src

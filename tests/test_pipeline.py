@@ -94,7 +94,8 @@ def fakes(monkeypatch):
 
     mods = {
         "spotpde.density.spot_density": types.SimpleNamespace(solve=solve_rho),
-        "spotpde.fields.coefficients": types.SimpleNamespace(particle_fields=particle_fields),
+        "spotpde.fields.coefficients": types.SimpleNamespace(particle_fields=particle_fields,
+                                                             release_caches=lambda: None),
         "spotpde.density.kinematic": types.SimpleNamespace(speed=unit_speed),
         "spotpde.tracer": types.SimpleNamespace(solve=tracer_solve),
         "spotpde.fields.void": types.SimpleNamespace(void_fields=void_fields),

@@ -4,9 +4,12 @@ One function, :func:`check_consistency`, records every problem between keys on t
 validator of :mod:`._schema`, each naming the key to change:
 
 * the grid: ``domain.z`` starts at the floor ``z = 0``; ``domain.spacing`` h divides
-  each extent into at least 4 whole cells (at most 1e9);
+  each extent into at least 4 whole cells (at most 1e9); ``domain.y`` only in 3D,
+  also a whole number of at least 4 cells;
 * the orifice lies on the floor ``domain.x`` (the whole slot ``[x - width/2,
-  x + width/2]`` for a uniform profile; ``orifice.y`` only in 3D, on the same extent);
+  x + width/2]`` for a uniform profile; ``orifice.y`` only in 3D, on the y extent
+  ``domain.y`` or, without it, ``domain.x``); ``orifice.shape`` only in 3D, and a
+  slot (across the whole depth) has no ``orifice.y``;
   a Gaussian profile needs ``width > 0``; a uniform slot is a point (0) or at least h;
 * time-dependent inputs (a rate table, ``orifice.noise``, ``spots.rho_max``) need
   ``spots.mode = "transient"`` with ``spots.t_end > 0``, a steady run has ``t_end = 0``;
@@ -43,19 +46,16 @@ def check_consistency(v: _Validator, data: dict) -> None:
     dims, h = d["dims"], d["spacing"]
     x0, x1 = d["x"]
     z0, z1 = d["z"]
+    y0, y1 = _check_depth(v, d)
+    ywhere = "domain.y" if "y" in d else "domain.x"
     if z0 != 0.0:
         v.bad("domain.z", "must start at 0 (the orifice is the floor z = 0)", d["z"])
     for name, (a, b) in (("x", d["x"]), ("z", d["z"])):
-        n = (b - a) / h
-        if not math.isfinite(n) or n > 1e9:
-            v.bad("domain.spacing", f"is far too small for the domain.{name} extent "
-                  f"{_show(b - a)} ({n:.3g} cells)", h)
-        elif round(n) < 4:
-            v.bad("domain.spacing", f"must give at least 4 cells across the "
-                  f"domain.{name} extent {_show(b - a)}", h)
-        elif abs(n - round(n)) > 1e-6 * max(1.0, n):
-            v.bad("domain.spacing", f"must divide the domain.{name} extent "
-                  f"{_show(b - a)} into whole cells", h)
+        extent = f"the domain.{name} extent {_show(b - a)}"
+        _check_cells(v, "domain.spacing", h, b - a, h, {
+            "many": f"is far too small for {extent} ({{n:.3g}} cells)",
+            "few": f"must give at least 4 cells across {extent}",
+            "partial": f"must divide {extent} into whole cells"})
     # orifice on the floor
     half = 0.5 * o["width"] if o["profile"] == "uniform" else 0.0
     # axisymmetric: the orifice is the disk r <= width/2 around the axis r = x0 = 0
@@ -65,13 +65,19 @@ def check_consistency(v: _Validator, data: dict) -> None:
         v.bad("orifice.x", f"{what} must lie on the floor "
               f"domain.x = [{_show(x0)}, {_show(x1)}] (orifice.width = "
               f"{_show(o['width'])})", o["x"])
+    if "shape" in o and dims != 3:
+        v.bad("orifice.shape", "is only used when domain.dims = 3 (a 2D orifice is a "
+              "slot); remove it", o["shape"])
     if "y" in o:
         if dims != 3:
             v.bad("orifice.y", "is only used when domain.dims = 3; remove it",
                   o["y"])
-        elif not (x0 <= o["y"] - half and o["y"] + half <= x1):
+        elif o.get("shape") == "slot":
+            v.bad("orifice.y", 'is not used by orifice.shape = "slot" (the slot spans '
+                  "the whole depth in y); remove it", o["y"])
+        elif not (y0 <= o["y"] - half and o["y"] + half <= y1):
             v.bad("orifice.y", f"the orifice must lie on the floor, y in "
-                  f"[{_show(x0)}, {_show(x1)}] (y uses the domain.x extent)", o["y"])
+                  f"[{_show(y0)}, {_show(y1)}] (the {ywhere} extent)", o["y"])
     if o["profile"] == "gaussian" and o["width"] == 0.0:
         v.bad("orifice.width", 'must be > 0 for profile = "gaussian" '
               '(use profile = "uniform" with width = 0 for a point source)', 0.0)
@@ -141,9 +147,9 @@ def check_consistency(v: _Validator, data: dict) -> None:
             if dims != 3:
                 v.bad("tracer.start.y", "is only used when domain.dims = 3; remove it",
                       st["y"])
-            elif not x0 <= st["y"] <= x1:
-                v.bad("tracer.start.y", f"must lie in [{_show(x0)}, {_show(x1)}] "
-                      "(y uses the domain.x extent)", st["y"])
+            elif not y0 <= st["y"] <= y1:
+                v.bad("tracer.start.y", f"must lie in [{_show(y0)}, {_show(y1)}] "
+                      f"(the {ywhere} extent)", st["y"])
         if st["width"] < h:
             v.bad("tracer.start.width", f"must be at least domain.spacing = "
                   f"{_show(h)} so the blob is resolved", st["width"])
@@ -168,6 +174,42 @@ def check_consistency(v: _Validator, data: dict) -> None:
         if p.get("z") is not None and not z0 < p["z"] < z1:
             v.bad("pair.z", f"must lie inside domain.z = ({_show(z0)}, {_show(z1)})",
                   p["z"])
+
+
+def _check_depth(v: _Validator, d: dict) -> tuple[float, float]:
+    """``domain.y`` (3D only; a whole number of at least 4 cells); returns the y extent
+    (``domain.y``, else ``domain.x``)."""
+    if "y" not in d:
+        return tuple(d["x"])
+    y, h = d["y"], d["spacing"]
+    if d["dims"] != 3:
+        v.bad("domain.y", "is only used when domain.dims = 3 (the depth of a 3D silo); "
+              "remove it", y)
+        return tuple(d["x"])
+    cells, extent = f"cells of domain.spacing = {_show(h)}", _show(y[1] - y[0])
+    _check_cells(v, "domain.y", y, y[1] - y[0], h, {
+        "many": f"spans far too many {cells} ({{n:.3g}})",
+        "few": f"must be at least 4 {cells} deep, got an extent of {extent}",
+        "partial": f"must be a whole number of {cells}, got an extent of {extent} "
+                   "({n:.6g} cells)"})
+    return tuple(y)
+
+
+def _check_cells(v: _Validator, key: str, value, extent: float, h: float,
+                 messages: dict[str, str]) -> None:
+    """Record on ``v`` (naming ``key``) what is wrong with the number of cells of spacing
+    ``h`` across ``extent``: ``messages["many"]`` (not finite or over 1e9), ``["few"]``
+    (under 4) or ``["partial"]`` (not whole), each formatted with ``n`` the cells."""
+    n = extent / h
+    if not math.isfinite(n) or n > 1e9:
+        problem = "many"
+    elif round(n) < 4:
+        problem = "few"
+    elif abs(n - round(n)) > 1e-6 * max(1.0, n):
+        problem = "partial"
+    else:
+        return
+    v.bad(key, messages[problem].format(n=n), value)
 
 
 def _check_geometry(v: _Validator, data: dict) -> None:

@@ -101,12 +101,14 @@ def _estimate(data: Mapping, frames_in_memory: bool = True, *, pad: bool = True,
     d, k = data["domain"], data["kernel"]
     dims, h = d["dims"], d["spacing"]
     nx = (d["x"][1] - d["x"][0]) / h
+    ny = (d["y"][1] - d["y"][0]) / h if "y" in d else nx
     nz = (d["z"][1] - d["z"][0]) / h
     if d["walls"] == "open" and pad:   # the spot density is solved on a padded, wider grid
         b = data["spots"]["b"]
         b = max(b["values"]) if isinstance(b, Mapping) else b
-        nx += 2 * math.ceil(6.0 * math.sqrt(b * (d["z"][1] - d["z"][0])) / h)
-    cells = nz * nx ** (dims - 1)
+        widen = 2 * math.ceil(6.0 * math.sqrt(b * (d["z"][1] - d["z"][0])) / h)
+        nx, ny = nx + widen, ny + widen
+    cells = nz * nx * (ny if dims == 3 else 1)
     if not stencil:
         sx = sz = 1
     else:
@@ -118,7 +120,7 @@ def _estimate(data: Mapping, frames_in_memory: bool = True, *, pad: bool = True,
             sx = 2 * math.ceil(reach_h / h) + 1
             sz = 2 * math.ceil(reach_h / k["aspect"] / h) + 1
     stencil = sz * sx ** (dims - 1)
-    padded = (nz + sz) * (nx + sx) ** (dims - 1)
+    padded = (nz + sz) * (nx + sx) * ((ny + sx) if dims == 3 else 1)
     if d.get("coordinates") == "axisymmetric":
         # ring-integrated kernel weights: for every output radius a band of source radii
         # times the vertical stencil, for w and w**2, scalar and radial (cos) parts
@@ -173,8 +175,9 @@ def memory_problem(data: Mapping, frames_in_memory: bool, have: int
         return None
     d = data["domain"]
     nx = (d["x"][1] - d["x"][0]) / d["spacing"]
+    ny = (d["y"][1] - d["y"][0]) / d["spacing"] if "y" in d else nx
     nz = (d["z"][1] - d["z"][0]) / d["spacing"]
-    cells = " x ".join(f"{n:,.0f}" for n in ([nz] + [nx] * (d["dims"] - 1)))
+    cells = " x ".join(f"{n:,.0f}" for n in ([nz] + ([ny] if d["dims"] == 3 else []) + [nx]))
     snaps = data.get("tracer") is not None and data["spots"]["mode"] == "transient"
     limit = MEMORY_FRACTION * have - BASELINE_BYTES
     key, value, advice = "domain.spacing", d["spacing"], (

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from ..grid import COORDINATES, WALLS
-from ..parameters import PROFILES, SPOT_MODES, TRACER_MODELS
+from ..parameters import ORIFICE_SHAPES, PROFILES, SPOT_MODES, TRACER_MODELS
 
 KERNEL_SHAPES = ("uniform", "gaussian", "exponential")
 #: Wall treatments of the influence kernel (``spotpde.fields._walls.WALL_TREATMENTS``).
@@ -41,10 +41,10 @@ DIFFUSIVITIES = ("passage", "mean-field")
 #: Defaults of every key, table by table (docs/interface.md). ``None`` marks an optional key
 #: without a default. The ``tracer`` table itself is optional.
 DEFAULTS: dict[str, dict[str, Any]] = {
-    "domain": {"dims": 2, "x": [-30.0, 30.0], "z": [0.0, 100.0], "spacing": 0.25,
+    "domain": {"dims": 2, "x": [-30.0, 30.0], "y": None, "z": [0.0, 100.0], "spacing": 0.25,
                "walls": "reflecting", "coordinates": "cartesian", "hopper_angle": None},
     "orifice": {"x": 0.0, "y": None, "width": 0.0, "profile": "uniform", "rate": 1.0,
-                "noise": None},
+                "noise": None, "shape": None},
     "spots": {"drift": 1.0, "b": 1.3, "b_par": 0.0, "mode": "steady", "t_end": 0.0,
               "rho_max": None, "flux": None, "diffusion_scaling": None, "frames": None},
     "kernel": {"shape": "gaussian", "size": 1.0, "volume": 0.05, "height": None,
@@ -265,6 +265,7 @@ class _Validator:
         return {
             "dims": self.dims(t["dims"]),
             "x": self.pair("domain.x", t["x"]),
+            **({} if t["y"] is None else {"y": self.pair("domain.y", t["y"])}),
             "z": self.pair("domain.z", t["z"]),
             "spacing": self.number("domain.spacing", t["spacing"], gt=0),
             "walls": self.choice("domain.walls", t["walls"], WALLS),
@@ -290,6 +291,8 @@ class _Validator:
         }
         if t["y"] is not None:
             out["y"] = self.number("orifice.y", t["y"])
+        if t["shape"] is not None:
+            out["shape"] = self.choice("orifice.shape", t["shape"], ORIFICE_SHAPES)
         if t["noise"] is not None:
             out["noise"] = self.noise(t["noise"])
         return out

@@ -80,7 +80,8 @@ class Case:
             hopper = Hopper(angle=d["hopper_angle"], centre=o["x"], half_width=half)
         self.grid = Grid(dims=d["dims"], x_range=tuple(d["x"]), z_range=tuple(d["z"]),
                          spacing=d["spacing"], walls=d["walls"],
-                         coordinates=d.get("coordinates", "cartesian"), hopper=hopper)
+                         coordinates=d.get("coordinates", "cartesian"), hopper=hopper,
+                         y_range=tuple(d["y"]) if "y" in d else None)
         rate = o["rate"]
         if isinstance(rate, dict):
             from ..density.orifice import rate_from_table
@@ -91,7 +92,7 @@ class Case:
 
             rate = noisy_rate(rate, **o["noise"])
         self.orifice = Orifice(x=o["x"], width=o["width"], profile=o["profile"],
-                               rate=rate, y=o.get("y"))
+                               rate=rate, y=o.get("y"), shape=o.get("shape", "disk"))
         self.spots = Spots(drift=_field(s["drift"], self.grid), b=_field(s["b"], self.grid),
                            b_par=_field(s["b_par"], self.grid), mode=s["mode"],
                            t_end=s["t_end"], rho_max=s.get("rho_max"),
@@ -296,11 +297,14 @@ def _warn_wide_kernel(data: Mapping) -> None:
 
     d, k = data["domain"], data["kernel"]
     width, height = d["x"][1] - d["x"][0], d["z"][1] - d["z"][0]
+    depth = d["y"][1] - d["y"][0] if "y" in d and d["dims"] == 3 else width
     size_h, size_v = k["size"], k["size"] / k["aspect"]
-    if 2 * size_h > width or 2 * size_v > height:
+    if 2 * size_h > min(width, depth) or 2 * size_v > height:
+        box = f"{_show(width)} x {_show(depth)} x {_show(height)}" if depth != width else \
+            f"{_show(width)} x {_show(height)}"
         warnings.warn(f"kernel.size: the kernel ({_show(2 * size_h)} d wide, "
                       f"{_show(2 * size_v)} d tall) is wider than the domain "
-                      f"({_show(width)} x {_show(height)} d); the fields will mostly show "
+                      f"({box} d); the fields will mostly show "
                       "the walls", UserWarning, stacklevel=3)
 
 

@@ -13,7 +13,9 @@ diffusion, two sparse backward-Euler solves per step. The rates below are conser
 (one thread; measured on the 2-core development machine, benchmarks/tracer.py and
 benchmarks/steady.py):
 
-* ``weno5``: 2.0e7 cell-steps per second; the other reconstructions 3.0e7;
+* ``weno5``: 2.0e7 cell-steps per second; the other reconstructions 3.0e7; a 3D cell
+  costs :data:`STEP_COST_3D` times a 2D one (a third axis of fluxes and short rows:
+  47-63 against 87-109 Mcell/s a stage on one thread, docs/tracer.md);
 * implicit diffusion: 8e6 cell-steps per second for the two LU solves and flux products
   (void-model propagator, 8.96e4 cells: 16 ms a step in all with one thread at a load
   average of 3, of which about 5 ms are the SSP-RK3 advection).
@@ -40,6 +42,8 @@ from ..errors import CaseError
 #: Cell updates per second of one SSP-RK3 step, by reconstruction (one thread).
 STEP_RATE = {"weno5": 2.0e7}
 STEP_RATE_DEFAULT = 3.0e7
+#: Cost of a 3D cell update in 2D cell updates (the fused 3D kernel, WENO5).
+STEP_COST_3D = 2.0
 #: Cell updates per second of the two backward-Euler solves of a step (implicit diffusion).
 IMPLICIT_RATE = 8.0e6
 #: Longest run started without ``--allow-long``: one day.
@@ -96,6 +100,8 @@ def tracer_steps(grid, fields, t_end: float, frames: int, *, limiter: str = "wen
     steps = n_sub * (frames - 1)
     cells = int(grid.size)
     step_rate = STEP_RATE.get(limiter, STEP_RATE_DEFAULT)
+    if grid.dims == 3:
+        step_rate /= STEP_COST_3D
     per_step = cells / step_rate
     if implicit:
         per_step += cells / IMPLICIT_RATE

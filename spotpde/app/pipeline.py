@@ -166,6 +166,8 @@ def _run(case: Case, progress: Progress | None, open_frames=None,
     # solved)
     transient = spots.mode == "transient"
     fields = case_fields(case, np.maximum(rho_s, 0.0) if transient else rho_s)
+    if snap_times is None and case.model != "void":   # no more convolutions in this run
+        importlib.import_module("spotpde.fields.coefficients").release_caches()
     stage(1.0)
     if on_fields is not None:
         on_fields(fields)

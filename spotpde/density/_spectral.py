@@ -95,6 +95,7 @@ def steady_flux(grid: Grid, orifice: Orifice, b: float, Q0: float = 1.0,
         averages at the cell-centre heights); divide by ``v_s`` for ``rho_s``.
     """
     n, L, h = grid.nx, grid.x_range[1] - grid.x_range[0], grid.spacing
+    ny, Ly = (grid.ny, grid.y_range[1] - grid.y_range[0]) if grid.dims == 3 else (1, L)
     zeta = grid.z - grid.z_range[0]
     H = grid.z_range[1] - grid.z_range[0]
     # rows where modes beyond the grid's still matter, and how many blocks of n to keep
@@ -104,31 +105,40 @@ def steady_flux(grid: Grid, orifice: Orifice, b: float, Q0: float = 1.0,
         R = ALIAS_EXPONENT / zeta[0]
         kmax = np.sqrt((b_par * R**2 + R) / b)
         blocks = int(min(MAX_ALIAS_BLOCKS, np.ceil(kmax * h / np.pi) + 1))
-    a_full = cosine_coefficients(grid, orifice, n * blocks) * Q0
     # cell averages: the mean of cos(k x) over a cell is sinc(k h / 2) cos(k x_i)
     avg = np.sinc(np.arange(n * blocks) * h / (2.0 * L))
-    a_full = a_full * (avg if grid.dims == 2 else avg[:, None] * avg[None, :])
-    a = a_full[(slice(0, n),) * (grid.dims - 1)]
     k1 = (np.pi * np.arange(n * blocks) / L) ** 2
-    k2 = k1 if grid.dims == 2 else k1[:, None] + k1[None, :]
     half = np.where(np.arange(n) == 0, 1.0, 0.5)
+    if grid.dims == 2:
+        a_full = cosine_coefficients(grid, orifice, n * blocks) * Q0 * avg
+        a, k2, sizes = a_full[:n], k1, (n,)
+    else:
+        a_full = cosine_coefficients(grid, orifice, (ny * blocks, n * blocks)) * Q0
+        avg_y = np.sinc(np.arange(ny * blocks) * h / (2.0 * Ly))
+        a_full *= avg_y[:, None] * avg[None, :]
+        a = a_full[:ny, :n]
+        k1y = (np.pi * np.arange(ny * blocks) / Ly) ** 2
+        k2 = k1y[:, None] + k1[None, :]
+        sizes = (ny, n)
+        half_y = np.where(np.arange(ny) == 0, 1.0, 0.5)
     if grid.dims == 2:      # (profile * a) * half, block by block (no whole-grid passes)
         c = _live_modes(k1[:n], zeta, b, b_par, H, factors=(a, half))
     elif b_par == 0:            # separable: exp(-b (kx^2 + ky^2) z) = product
-        decay = np.exp(-b * zeta[:, None] * k1[None, :n])
-        c = a[None, :, :] * decay[:, :, None] * decay[:, None, :]
+        decay_x = np.exp(-b * zeta[:, None] * k1[None, :n])
+        decay_y = np.exp(-b * zeta[:, None] * k1y[None, :ny])
+        c = a[None, :, :] * decay_y[:, :, None] * decay_x[:, None, :]
     else:
-        c = a[None, :, :] * mode_profile(k2[None, :n, :n], zeta[:, None, None], b, b_par, H)
+        c = a[None, :, :] * mode_profile(k2[None, :ny, :n], zeta[:, None, None], b, b_par, H)
     for k in range(alias_rows if blocks > 1 else 0):
         R = ALIAS_EXPONENT / zeta[k]                    # fewer blocks needed higher up
-        m = n * int(min(blocks, np.ceil(np.sqrt((b_par * R**2 + R) / b) * h / np.pi) + 1))
-        sl = (slice(0, m),) * (grid.dims - 1)
+        q = int(min(blocks, np.ceil(np.sqrt((b_par * R**2 + R) / b) * h / np.pi) + 1))
+        sl = tuple(slice(0, q * m) for m in sizes)
         full = a_full[sl] * mode_profile(k2[sl], zeta[k], b, b_par, H)
-        c[k] = _fold_modes(full, n, grid.dims - 1)
+        c[k] = _fold_modes(full, sizes)
         if grid.dims == 2:
             c[k] *= half
     if grid.dims == 3:
-        c *= half[:, None] * half[None, :]
+        c *= half_y[:, None] * half[None, :]
     if grid.dims == 2:
         return scipy.fft.dct(c, type=3, axis=-1, workers=WORKERS, overwrite_x=True)
     return scipy.fft.dctn(c, type=3, axes=(1, 2), workers=WORKERS, overwrite_x=True)
@@ -163,14 +173,15 @@ def _live_modes(k2: np.ndarray, zeta: np.ndarray, b: float, b_par: float, H: flo
     return out
 
 
-def _fold_modes(c: np.ndarray, n: int, naxes: int) -> np.ndarray:
-    """Fold cosine coefficients of ``M n`` modes onto the ``n`` modes seen at cell centres.
+def _fold_modes(c: np.ndarray, sizes: tuple[int, ...]) -> np.ndarray:
+    """Fold cosine coefficients of ``M n`` modes onto the ``n`` modes seen at cell centres
+    (``n = sizes[axis]`` along each axis).
 
     Per axis: blocks of ``2n`` modes summed with signs ``(-1)**q`` give ``S_r``
     (``r = p mod 2n``); then ``out_j = S_j - S_{2n-j}`` for ``0 < j < n``, ``out_0 = S_0``
     (mode ``r = n`` vanishes at the centres).
     """
-    for ax in range(naxes):
+    for ax, n in enumerate(sizes):
         a = np.moveaxis(c, ax, 0)
         m = a.shape[0]
         blocks = -(-m // (2 * n))

@@ -318,6 +318,9 @@ def streamlines(fields: dict[str, np.ndarray], grid: Grid, starts, max_length: f
     interp = _linear2 if dims == 2 else _linear3
     z0, z1 = grid.z_range
     x0, x1 = grid.x_range
+    # horizontal bounds in the column order (x, [y])
+    low = np.array([x0] + ([grid.y_range[0]] if dims == 3 else []))
+    high = np.array([x1] + ([grid.y_range[1]] if dims == 3 else []))
     h = grid.spacing
     floor_level = z0 + 0.5 * h
     if max_length is None:
@@ -337,7 +340,7 @@ def streamlines(fields: dict[str, np.ndarray], grid: Grid, starts, max_length: f
     hop = grid.hopper
 
     def leave(_s, X):
-        inside = min(X[:-1].min() - x0, x1 - X[:-1].max(), z1 - X[-1])
+        inside = min((X[:-1] - low).min(), (high - X[:-1]).min(), z1 - X[-1])
         if hop is not None:      # beyond the staircase: half a cell outside the wall
             inside = min(inside, hop.half_width_at(X[-1] - z0) + 0.5 * h - abs(X[0] - hop.centre))
         return inside + 1e-9

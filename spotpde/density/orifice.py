@@ -15,7 +15,10 @@ Profiles (``spotpde.parameters.Orifice``):
   ``1/W`` (``4 / (pi W**2)``); cell values are exact cell averages (3D: edge cells
   supersampled 16 x 16).
 * ``"gaussian"``: ``width = 2 sigma`` per horizontal axis; exact cell averages (erf).
-* ``width >= floor side`` (any profile): uniform flow over the whole floor.
+* 3D ``shape = "slot"``: the 2D profile in x across the whole depth, uniform in y
+  (density ``s_2D(x) / L_y``): a thin slab's slot orifice.
+* ``width >= floor side`` (any profile; the longer side for a 3D disk): uniform flow
+  over the whole floor.
 * axisymmetric grids (the orifice on the axis, ``width`` its diameter): exact ring
   masses of the disk or the radial Gaussian; a point orifice fills the first ring
   ``r < h`` (:func:`_ring_profile`). Hoppers: the profile on the active floor cells.
@@ -35,7 +38,7 @@ import numpy as np
 from scipy.special import erf, j1
 
 from ..grid import Grid
-from ..parameters import PROFILES, Orifice
+from ..parameters import ORIFICE_SHAPES, PROFILES, Orifice
 
 __all__ = [
     "source_profile",
@@ -68,8 +71,16 @@ def check_orifice(grid: Grid, orifice: Orifice) -> None:
                         f"got {orifice.x!r}")
     elif not (x0 <= orifice.x <= x1):
         problems.append(f"orifice.x: must lie on the floor [{x0}, {x1}], got {orifice.x!r}")
-    if grid.dims == 3 and orifice.y is not None and not (x0 <= orifice.y <= x1):
-        problems.append(f"orifice.y: must lie on the floor [{x0}, {x1}], got {orifice.y!r}")
+    if orifice.shape not in ORIFICE_SHAPES:
+        problems.append(f"orifice.shape: must be one of {', '.join(map(repr, ORIFICE_SHAPES))}, "
+                        f"got {orifice.shape!r}")
+    elif orifice.shape == "slot" and grid.dims != 3:
+        problems.append("orifice.shape: \"slot\" is for 3D grids (a 2D orifice is a slot), "
+                        f"got dims = {grid.dims}")
+    if grid.dims == 3 and orifice.y is not None:
+        y0, y1 = grid.y_range
+        if not (y0 <= orifice.y <= y1):
+            problems.append(f"orifice.y: must lie on the floor [{y0}, {y1}], got {orifice.y!r}")
     if not callable(orifice.rate):
         q = float(orifice.rate)
         if not (np.isfinite(q) and q >= 0):
@@ -113,11 +124,15 @@ def rate_from_table(times: Sequence[float], values: Sequence[float]) -> Callable
 
 
 def is_uniform_flow(grid: Grid, orifice: Orifice) -> bool:
-    """True when the orifice spans the whole floor (width >= the floor's side; the
-    diameter ``2 a`` on an axisymmetric grid)."""
+    """True when the orifice spans the whole floor (width >= the floor's side: x for a
+    slot, the longer of x and y for a 3D disk; the diameter ``2 a`` on an axisymmetric
+    grid)."""
     if grid.axisymmetric:
         return orifice.width >= 2.0 * grid.x_range[1]
-    return orifice.width >= grid.x_range[1] - grid.x_range[0]
+    side = grid.x_range[1] - grid.x_range[0]
+    if grid.dims == 3 and orifice.shape != "slot":
+        side = max(side, grid.y_range[1] - grid.y_range[0])
+    return orifice.width >= side
 
 
 def _centre(grid: Grid, orifice: Orifice) -> tuple[float, float]:
@@ -173,12 +188,13 @@ def _axis_weights(lo: float, h: float, n: int, centre: float, width: float,
 
 
 def _disk_weights(grid: Grid, xc: float, yc: float, diameter: float) -> np.ndarray:
-    """Cell masses of a uniform disk on the ``(ny, nx)`` floor (before folding)."""
-    h, n, lo = grid.spacing, grid.nx, grid.x_range[0]
-    R = 0.5 * diameter
-    pad = int(np.ceil(max(0.0, max(lo - (min(xc, yc) - R), max(xc, yc) + R - (lo + n * h))) / h)) + 1
-    c = lo + h * (np.arange(-pad, n + pad) + 0.5)
-    X, Y = np.meshgrid(c, c, indexing="xy")               # array order (y, x)
+    """Cell masses of a uniform disk on the ``(ny, nx)`` floor (folded or clipped)."""
+    h, R = grid.spacing, 0.5 * diameter
+    pads, centres = [], []
+    for lo, n, c in ((grid.x_range[0], grid.nx, xc), (grid.y_range[0], grid.ny, yc)):
+        pads.append(int(np.ceil(max(0.0, lo - (c - R), c + R - (lo + n * h)) / h)) + 1)
+        centres.append(lo + h * (np.arange(-pads[-1], n + pads[-1]) + 0.5))
+    X, Y = np.meshgrid(*centres, indexing="xy")           # array order (y, x)
     dx, dy = np.abs(X - xc), np.abs(Y - yc)
     near = np.hypot(np.maximum(dx - h / 2, 0), np.maximum(dy - h / 2, 0))
     far = np.hypot(dx + h / 2, dy + h / 2)
@@ -191,8 +207,8 @@ def _disk_weights(grid: Grid, xc: float, yc: float, diameter: float) -> np.ndarr
         py = Y[a, b] + h * sub[:, None]
         frac[a, b] = np.mean((px - xc) ** 2 + (py - yc) ** 2 <= R * R)
     w = frac / frac.sum()
-    w = _fold(w, pad, n, grid.walls, 0)
-    return _fold(w, pad, n, grid.walls, 1)
+    w = _fold(w, pads[1], grid.ny, grid.walls, 0)
+    return _fold(w, pads[0], grid.nx, grid.walls, 1)
 
 
 # -- public profile --------------------------------------------------------------------
@@ -221,17 +237,22 @@ def source_profile(grid: Grid, orifice: Orifice) -> np.ndarray:
 def _cartesian_profile(grid: Grid, orifice: Orifice) -> np.ndarray:
     h, n, lo = grid.spacing, grid.nx, grid.x_range[0]
     measure = grid.horizontal_cell_measure
+    floor = grid.shape[1:]
     if is_uniform_flow(grid, orifice):
-        shape = (n,) if grid.dims == 2 else (n, n)
-        return np.full(shape, 1.0 / (n * n ** (grid.dims - 2) * measure))
+        return np.full(floor, 1.0 / (np.prod(floor) * measure))
     xc, yc = _centre(grid, orifice)
+    wx = None if grid.dims == 3 and orifice.profile == "uniform" and orifice.width > 0 \
+        and orifice.shape == "disk" else \
+        _axis_weights(lo, h, n, xc, orifice.width, orifice.profile, grid.walls)
     if grid.dims == 2:
-        w = _axis_weights(lo, h, n, xc, orifice.width, orifice.profile, grid.walls)
-    elif orifice.profile == "uniform" and orifice.width > 0:
+        w = wx
+    elif orifice.shape == "slot":
+        w = np.broadcast_to(wx / grid.ny, floor)
+    elif wx is None:
         w = _disk_weights(grid, xc, yc, orifice.width)
     else:
-        wx = _axis_weights(lo, h, n, xc, orifice.width, orifice.profile, grid.walls)
-        wy = _axis_weights(lo, h, n, yc, orifice.width, orifice.profile, grid.walls)
+        wy = _axis_weights(grid.y_range[0], h, grid.ny, yc, orifice.width, orifice.profile,
+                           grid.walls)
         w = wy[:, None] * wx[None, :]
     total = w.sum()
     if not total > 0:
@@ -316,35 +337,48 @@ def cosine_coefficients(grid: Grid, orifice: Orifice, n_modes: int | None = None
     Args:
         grid: the grid (walls are assumed reflecting).
         orifice: the orifice.
-        n_modes: number of modes per axis (default ``nx``).
+        n_modes: number of modes per axis (default ``nx``, in 3D ``(ny, nx)``); in 3D
+            an int gives that many along both axes, a pair ``(m_y, m_x)`` each.
 
     Returns:
-        ``a`` of shape ``(n,)`` (2D) or ``(n, n)`` (3D, array order ``(y, x)``), in
-        d**-(dims-1), ``n = n_modes``.
+        ``a`` of shape ``(m_x,)`` (2D) or ``(m_y, m_x)`` (3D, array order ``(y, x)``),
+        in d**-(dims-1).
     """
     check_orifice(grid, orifice)
     if grid.axisymmetric or grid.hopper is not None:
         raise ValueError("grid: cosine coefficients exist for Cartesian boxes only, "
                          "not for axisymmetric or hopper grids")
-    n, L = (n_modes or grid.nx), grid.x_range[1] - grid.x_range[0]
-    k = np.pi * np.arange(n) / L
-    c = np.where(np.arange(n) == 0, 1.0, 2.0) / L
+    if grid.dims == 2:
+        my, mx = 1, (n_modes or grid.nx)
+    elif n_modes is None:
+        my, mx = grid.ny, grid.nx
+    else:
+        my, mx = (n_modes, n_modes) if np.ndim(n_modes) == 0 else n_modes
+    Lx = grid.x_range[1] - grid.x_range[0]
+    Ly = 1.0 if grid.dims == 2 else grid.y_range[1] - grid.y_range[0]
+
+    def axis(m, L):      # wavenumbers and the series' normalisation c_n / L
+        return np.pi * np.arange(m) / L, np.where(np.arange(m) == 0, 1.0, 2.0) / L
+
+    (kx, cx), (ky, cy) = axis(mx, Lx), axis(my, Ly)
     if is_uniform_flow(grid, orifice):
-        a = np.zeros((n,) if grid.dims == 2 else (n, n))
-        a.flat[0] = 1.0 / L ** (grid.dims - 1)
+        a = np.zeros((mx,) if grid.dims == 2 else (my, mx))
+        a.flat[0] = 1.0 / (Lx * Ly)
         return a
     xc, yc = _centre(grid, orifice)
-    X0, Y0 = xc - grid.x_range[0], yc - grid.x_range[0]
+    X0 = xc - grid.x_range[0]
     if grid.dims == 2:
-        return c * _axis_cosine(k, X0, orifice.width, orifice.profile)
+        return cx * _axis_cosine(kx, X0, orifice.width, orifice.profile)
+    ax = cx * _axis_cosine(kx, X0, orifice.width, orifice.profile)
+    if orifice.shape == "slot":          # uniform in y: mode 0 only
+        ay = np.where(np.arange(my) == 0, 1.0 / Ly, 0.0)
+        return ay[:, None] * ax[None, :]
+    Y0 = yc - grid.y_range[0]
     if orifice.profile == "uniform" and orifice.width > 0:
         R = 0.5 * orifice.width
-        kappa = np.hypot(k[:, None], k[None, :])
+        kappa = np.hypot(ky[:, None], kx[None, :])
         with np.errstate(invalid="ignore", divide="ignore"):
             airy = np.where(kappa > 0, 2.0 * j1(kappa * R) / (kappa * R), 1.0)
-        ay = c * np.cos(k * Y0)
-        ax = c * np.cos(k * X0)
-        return ay[:, None] * ax[None, :] * airy
-    ax = c * _axis_cosine(k, X0, orifice.width, orifice.profile)
-    ay = c * _axis_cosine(k, Y0, orifice.width, orifice.profile)
+        return (cy * np.cos(ky * Y0))[:, None] * (cx * np.cos(kx * X0))[None, :] * airy
+    ay = cy * _axis_cosine(ky, Y0, orifice.width, orifice.profile)
     return ay[:, None] * ax[None, :]

@@ -100,8 +100,12 @@ def _pad(grid: Grid, spots: Spots):
         g = dataclasses.replace(grid, walls="reflecting")
         return g, coeffs, lambda a: a
     h = grid.spacing
-    x0, x1 = grid.x_range
-    g = Grid(grid.dims, (x0 - p * h, x1 + p * h), grid.z_range, h, "reflecting")
+
+    def wider(r):
+        return (r[0] - p * h, r[1] + p * h)
+
+    g = Grid(grid.dims, wider(grid.x_range), grid.z_range, h, "reflecting",
+             y_range=wider(grid.y_range) if grid.dims == 3 else None)
     widths = [(0, 0)] + [(p, p)] * (grid.dims - 1)
     coeffs = [np.pad(c, widths, mode="edge") if np.ndim(c) > 0 else c for c in coeffs]
     n = grid.nx
@@ -109,7 +113,7 @@ def _pad(grid: Grid, spots: Spots):
     def crop(a):
         if grid.dims == 2:
             return np.ascontiguousarray(a[..., p:p + n])
-        return np.ascontiguousarray(a[..., p:p + n, p:p + n])
+        return np.ascontiguousarray(a[..., p:p + grid.ny, p:p + n])
 
     return g, coeffs, crop
 

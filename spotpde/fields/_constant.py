@@ -174,11 +174,15 @@ def constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, lam
     # the grid's interior); w**2 = c w (uniform kernel) reuses the one transform
     from .convolution import convolve
 
-    c1 = convolve(rho_p, conv.stencils[1], mode="linear")
+    # float64 arrays whatever the transforms' precision (single for large 3D grids)
+    c1 = np.asarray(convolve(rho_p, conv.stencils[1], mode="linear",
+                             precision=conv.precision), dtype=float)
     p2, c2 = conv.use[2]
     c2_array = None
     if need_D:
-        c2_array = c1 if p2 == 1 else convolve(rho_p, conv.stencils[2], mode="linear")
+        c2_array = c1 if p2 == 1 else np.asarray(
+            convolve(rho_p, conv.stencils[2], mode="linear", precision=conv.precision),
+            dtype=float)
     fields = {f"u_{a}": None for a in comps}      # None: zero so far
 
     def accumulate(key, value):
@@ -504,19 +508,19 @@ def add_requests(grid: Grid, fields: dict, requests, conv, D_s: Mapping, T: Mapp
         return
     hd = grid.spacing**grid.dims
     c2 = conv.use[2][1]
-    parts = _strips.box_convolutions(requests, conv.stencils, grid.shape)
-    for name, pieces in parts.items():
+    requests = list(requests)
+    for name, dst, values in _strips.box_convolutions(requests, conv.stencils, grid.shape):
+        part = [(dst, values)]
         if name != "D":
-            _strips.add(fields[name[0]], pieces, name[1])
-    D_parts = parts.get("D", [])
-    for key, t in T.items():
-        if not _is_zero(t):
-            _strips.add(fields[key], D_parts, float(t) * c2 * hd)
-    if passage_drift and D_parts:
-        for key, comp in (("D_xx", "x"), ("D_zz", "z")):
+            _strips.add(fields[name[0]], part, name[1])
+            continue
+        for key, t in T.items():
+            if not _is_zero(t):
+                _strips.add(fields[key], part, float(t) * c2 * hd)
+        for key, comp in (("D_xx", "x"), ("D_zz", "z")) if passage_drift else ():
             t, d = (0.0 if _is_zero(m[key]) else float(m[key]) for m in (T, D_s))
             if t != d:
-                _strips.add_derivative(fields[f"u_{comp}"], D_parts, grid.spacing,
+                _strips.add_derivative(fields[f"u_{comp}"], part, grid.spacing,
                                        grid.axes.index(comp), (t - d) * c2 * hd)
 
 

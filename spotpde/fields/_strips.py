@@ -12,17 +12,23 @@ ed., sec. 13.1), cheap for boxes a few stencils thick. Private.
 
 from __future__ import annotations
 
+import math
 import threading
 from collections import OrderedDict
 
 import numpy as np
 import scipy.fft
 
-__all__ = ["box_convolutions", "add", "add_derivative"]
+__all__ = ["box_convolutions", "add", "add_derivative", "clear_spectra"]
 
 _SPECTRA: OrderedDict = OrderedDict()
 _SPECTRA_SIZE = 8
 _lock = threading.Lock()
+#: Bytes of the complex spectra transformed in one batch: a group of sources larger than
+#: this is transformed in several batches (the strips of a thin 3D slab are most of the
+#: grid: its four sources of one box shape would otherwise hold about 4 grid arrays of
+#: spectrum and 4 of output at once).
+BATCH_BYTES = 64 * 1024**2
 
 
 def _spectrum(stencil: np.ndarray, fshape: tuple[int, ...]) -> np.ndarray:
@@ -41,31 +47,46 @@ def _spectrum(stencil: np.ndarray, fshape: tuple[int, ...]) -> np.ndarray:
     return spec
 
 
-def box_convolutions(requests, stencils, shape) -> dict:
-    """Linear convolutions of sources supported on boxes, batched.
+def clear_spectra() -> None:
+    """Drop the cached stencil spectra."""
+    with _lock:
+        _SPECTRA.clear()
+
+
+def box_convolutions(requests, stencils, shape):
+    """Linear convolutions of sources supported on boxes, batched, yielded group by group.
 
     ``requests``: ``[(name, box, source on the box, stencil key), ...]``, ``box`` a tuple
     of slices in grid indices (they may reach beyond the grid, e.g. ghost planes at index
     -1 or ``n``); ``stencils``: the centred stencils by key; ``shape``: the grid's. Sources
     of one stencil and box shape are stacked and transformed together (full convolution,
     transform lengths ``scipy.fft.next_fast_len``; one thread: the transforms are small,
-    a few stencils thick). Returns ``{name: [(target slices, values), ...]}``, each box
-    widened by the stencil's half-widths and cut to the grid, to be added with :func:`add`
-    (requests of one name are listed in turn).
+    a few stencils thick). Yields ``(name, target slices, values)`` for every request,
+    its box widened by the stencil's half-widths and cut to the grid, to be added with
+    :func:`add`: one group's results at a time, so that only one group's transforms are
+    in memory (in a thin 3D slab the walls' strips span most of the grid), in batches of
+    at most :data:`BATCH_BYTES` of spectrum.
     """
     groups: dict = {}
     for i, (_, _, sub, key) in enumerate(requests):
         groups.setdefault((key, sub.shape), []).append(i)
-    out: dict = {}
+    batches = []
     for (key, sub_shape), members in groups.items():
-        stencil = stencils[key]
-        full_shape = tuple(a + b - 1 for a, b in zip(sub_shape, stencil.shape))
+        full_shape = tuple(a + b - 1 for a, b in zip(sub_shape, stencils[key].shape))
         fshape = tuple(scipy.fft.next_fast_len(n, real=True) for n in full_shape)
+        size = 16 * math.prod(fshape[:-1]) * (fshape[-1] // 2 + 1)
+        step = max(1, BATCH_BYTES // size)
+        batches += [(key, full_shape, fshape, members[i:i + step])
+                    for i in range(0, len(members), step)]
+    for key, full_shape, fshape, members in batches:
+        stencil = stencils[key]
         axes = tuple(range(1, stencil.ndim + 1))
         src = np.stack([requests[i][2] for i in members])
         spec = scipy.fft.rfftn(src, fshape, axes=axes, workers=1)
+        del src
         spec *= _spectrum(stencil, fshape)
-        full = scipy.fft.irfftn(spec, fshape, axes=axes, workers=1)
+        full = scipy.fft.irfftn(spec, fshape, axes=axes, workers=1, overwrite_x=True)
+        del spec
         for j, i in enumerate(members):
             name, box = requests[i][:2]
             dst, cut = [], []
@@ -74,8 +95,8 @@ def box_convolutions(requests, stencils, shape) -> dict:
                 lo, hi = max(0, start), min(n, start + k)
                 dst.append(slice(lo, hi))
                 cut.append(slice(lo - start, hi - start))
-            out.setdefault(name, []).append((tuple(dst), full[j][tuple(cut)]))
-    return out
+            yield name, tuple(dst), full[j][tuple(cut)]
+        del full
 
 
 def add(target: np.ndarray, parts, factor: float) -> None:

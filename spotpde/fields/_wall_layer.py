@@ -53,7 +53,7 @@ def _wall_layer(grid: Grid, kernel, comp: str, g_face: Mapping[int, np.ndarray])
     reach_h, reach_v = kernel.reach
     comps = _COMPONENTS[grid.dims]
     tangential = [c for c in ("z", "y", "x") if c in comps and c != comp]
-    lo, hi = grid.x_range
+    lo, hi = grid.y_range if comp == "y" else grid.x_range
     n_normal = grid.shape[axis]
     out = np.zeros(grid.shape)
     # tangential stencil offsets (in cells), centred, covering the reach

@@ -63,11 +63,15 @@ __all__ = [
     "incompressibility_defect",
     "velocity_correlation",
     "pair_diffusivity",
+    "release_caches",
     "DRIFT_KEYS",
     "DIFFUSIVITY_KEYS",
 ]
 
 _COMPONENTS = {2: ("x", "z"), 3: ("x", "y", "z")}
+#: The largest negatives of ``D_p``'s diagonal taken for round-off, relative to its
+#: maximum, by transform precision (single: 40 times the measured error, 2.5e-7).
+ROUNDOFF = {"double": 1e-9, "single": 1e-5}
 #: Sub-samples per cell and axis for kernel quadratures at arbitrary points.
 _SUBSAMPLE = 6
 
@@ -197,16 +201,18 @@ def divergence(grid: Grid, tensor: Mapping[str, np.ndarray]) -> dict:
 
 # -- convolution ---------------------------------------------------------------------------
 
-def _convolve(fields: Sequence[np.ndarray], stencil: np.ndarray) -> list[np.ndarray]:
-    """Linear (zero-padded) discrete convolution of several fields with one stencil."""
+def _convolve(fields: Sequence[np.ndarray], stencil: np.ndarray,
+              precision: str = "double") -> list[np.ndarray]:
+    """Linear (zero-padded) discrete convolution of several fields with one stencil
+    (float64 results whatever the transforms' ``precision``)."""
     if not fields:
         return []
     from . import convolution
 
-    out = convolution.convolve(list(fields), stencil, mode="linear")
+    out = convolution.convolve(list(fields), stencil, mode="linear", precision=precision)
     if isinstance(out, np.ndarray) and out.ndim == np.ndim(fields[0]) and len(fields) == 1:
-        return [out]
-    return list(out)
+        out = [out]
+    return [np.asarray(a, dtype=float) for a in out]
 
 
 def _proportional(s1: np.ndarray, s2: np.ndarray) -> float | None:
@@ -232,8 +238,12 @@ class _Convolutions:
     """
 
     def __init__(self, grid: Grid, kernel):
+        from .convolution import precision_for
+
         self.h = grid.spacing
         self.dims = grid.dims
+        #: of the whole-grid transforms: single for large 3D grids (convolution module)
+        self.precision = precision_for(grid.shape)
         self.stencils = {p: np.asarray(kernel.sample(self.h, power=p), dtype=float) for p in (1, 2)}
         c = _proportional(self.stencils[1], self.stencils[2])
         # power -> (stencil used, factor)
@@ -254,7 +264,8 @@ class _Convolutions:
             names = sorted({n for n, q in self.requests if self.use[q][0] == p})
             if not names:
                 continue
-            results = _convolve([self.sources[n] for n in names], self.stencils[p])
+            results = _convolve([self.sources[n] for n in names], self.stencils[p],
+                                self.precision)
             done = dict(zip(names, results))
             for n, q in self.requests:
                 if self.use[q][0] == p:
@@ -456,11 +467,27 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
     # wall layer of the reflecting side walls: (1 - 2 lam) int (D_s rho_s)^ab n_b w dA
     add_wall_layer(grid, kernel, lam, G, phi, fields)
     # D_p = w^2 * (rho_s D_s) has a non-negative diagonal; the FFT leaves round-off
-    # negatives (~1e-17 of the peak) where it vanishes, which the tracer would reject
+    # negatives (~1e-17 of the peak, ~1e-7 in single precision) where it vanishes, which
+    # the tracer would reject
+    rel = ROUNDOFF[conv.precision]
     for a in comps:   # the arrays are this call's own: clipped in place
-        fields[f"D_{a}{a}"] = clip_roundoff(fields[f"D_{a}{a}"], inplace=True)
+        fields[f"D_{a}{a}"] = clip_roundoff(fields[f"D_{a}{a}"], rel, inplace=True)
     order = DRIFT_KEYS[grid.dims] + DIFFUSIVITY_KEYS[grid.dims]
     return {k: fields[k] for k in order}
+
+
+def release_caches() -> None:
+    """Free what the convolutions of :func:`particle_fields` keep for the next call of the
+    same shape: FFT plans and their buffers, kernel spectra, the wall strips' spectra.
+
+    For a grid of millions of cells that is several hundred MB (a 3D slab of 2.6 M cells:
+    about 8 grid arrays) held through the tracer stage, which needs none of it; the next
+    call rebuilds them (milliseconds: the plans are estimated, not measured).
+    """
+    from . import _strips, convolution
+
+    convolution.clear_caches()
+    _strips.clear_spectra()
 
 
 # -- diagnostics ------------------------------------------------------------------------------

@@ -524,9 +524,13 @@ class Exponential(Kernel):
         return (1.0 + q * q) ** (-1.5 if self.dims == 2 else -2.0)
 
     def _cell_average(self, mz, mh, hz, hh, power):
+        # numba, imported on first use: validating a case builds its kernel, and only an
+        # exponential one needs the compiled cell averages
+        from . import _cellavg_exp
+
         if self.dims == 2:
-            return _cellavg.exp_cell_avg_2d(mz, mh, hz, hh, float(power))
-        return _cellavg.exp_cell_avg_3d(mz, mh, hz, hh, float(power))
+            return _cellavg_exp.exp_cell_avg_2d(mz, mh, hz, hh, float(power))
+        return _cellavg_exp.exp_cell_avg_3d(mz, mh, hz, hh, float(power))
 
 
 # ----------------------------------------------------------------------------------------

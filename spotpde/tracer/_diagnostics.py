@@ -158,8 +158,9 @@ def sde_ensemble(grid: Grid, fields: Fields, starts, t_end: float, n: int, dt: f
     alive = np.ones(n, dtype=bool)
     interp = _interp_factory(grid)
     axes = grid.axes
-    lo = [grid.z_range[0]] + [grid.x_range[0]] * (dims - 1)
-    hi = [grid.z_range[1]] + [grid.x_range[1]] * (dims - 1)
+    ranges = {"z": grid.z_range, "y": grid.y_range, "x": grid.x_range}
+    lo = [ranges[a][0] for a in grid.axes]
+    hi = [ranges[a][1] for a in grid.axes]
     steady = not callable(fields)
     f = _check_fields(grid, fields if steady else fields(0.0), "fields")
     nsteps = max(1, int(math.ceil(t_end / dt - 1e-9)))

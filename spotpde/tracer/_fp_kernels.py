@@ -136,7 +136,7 @@ def recon(v1, v2, v3, v4, v5, h1, h2, h5, limiter, eps):
 
     ``v1, v2`` lie further upwind, ``v5`` further downwind; ``h1, h2, h5`` say whether
     those cells exist (near a boundary the scheme falls back: WENO5 -> Koren -> donor
-    cell). The general, branching form: used near boundaries and in 3D.
+    cell). The general, branching form: used near boundaries.
     """
     if limiter == 6 and h1 and h2 and h5:
         return weno5z(v1, v2, v3, v4, v5, eps)
@@ -507,68 +507,6 @@ def _rhs_2d_variant(limiter: int, parallel: bool):
                                ih)
 
     return njit(parallel=parallel, cache=True, fastmath=FASTMATH, error_model="numpy")(rhs_2d)
-
-
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
-def _divergence_row_3d(Fx, Fys, Fyn, Fzb, Fzt, out, ih):
-    """``out = -(x, y and z flux differences) / h`` for one row of cells."""
-    for i in range(out.shape[0]):
-        out[i] = -((Fx[i + 1] - Fx[i]) + (Fyn[i] - Fys[i]) + (Fzt[i] - Fzb[i])) * ih
-
-
-@functools.lru_cache(maxsize=None)
-def advect_3d_kernel(limiter: int):
-    """The 3D advection kernel specialised for one reconstruction (see rhs_2d_kernel).
-
-    Built from the same row functions as the 2D kernel, applied along z, y and x lines
-    of cells (x innermost, contiguous); the diffusion tensor is added separately.
-    """
-    r = _reach(limiter)
-
-    @njit(parallel=True, cache=True, fastmath=FASTMATH, error_model="numpy")
-    def advect_3d(P, uxf, uyf, uzf, eps, h, out, Fz, Fz_acc, w_acc):
-        """-div(u P) in 3D with limited upwind face values.
-
-        Args:
-            P: (nz, ny, nx) density.
-            uxf: (nz, ny, nx+1), uyf: (nz, ny+1, nx), uzf: (nz+1, ny, nx) face velocities.
-            eps: WENO scale ``1 / P_scale**2``; h: spacing (``limiter`` is a compile-time
-                constant of this specialisation).
-            out: (nz, ny, nx) result.
-            Fz: (nz+1, ny, nx) vertical face fluxes, written.
-            Fz_acc: accumulator, ``Fz_acc += w_acc * Fz`` (advective part).
-        """
-        nz, ny, nx = P.shape
-        ih = 1.0 / h
-        zero_xz = np.zeros((nz, nx))
-        zero_yx = np.zeros((ny, nx))
-        zero = np.zeros(nx)
-        for k in prange(nz + 1):
-            for j in range(ny):
-                if k >= r and k <= nz - r:
-                    zface_row(P[k - 3, j], P[k - 2, j], P[k - 1, j], P[k, j], P[k + 1, j],
-                              P[min(k + 2, nz - 1), j], uzf[k, j], zero, zero, Fz[k, j], ih,
-                              eps, limiter)
-                else:
-                    zface_row_edge(P[:, j, :], uzf[:, j, :], zero_xz, k, Fz[k, j], ih, eps,
-                                   limiter)
-                _accumulate_row(Fz[k, j], Fz_acc[k, j], w_acc)
-        for k in prange(nz):
-            Fy = np.empty((ny + 1, nx))     # y faces of this plane
-            Fx = np.empty(nx + 1)
-            Pk = P[k]
-            for j in range(ny + 1):
-                if j >= r and j <= ny - r:
-                    zface_row(Pk[j - 3], Pk[j - 2], Pk[j - 1], Pk[j], Pk[j + 1],
-                              Pk[min(j + 2, ny - 1)], uyf[k, j], zero, zero, Fy[j], ih, eps,
-                              limiter)
-                else:
-                    zface_row_edge(Pk, uyf[k], zero_yx, j, Fy[j], ih, eps, limiter)
-            for j in range(ny):
-                xface_row(Pk[j], uxf[k, j], zero, Fx, ih, eps, limiter)
-                _divergence_row_3d(Fx, Fy[j], Fy[j + 1], Fz[k, j], Fz[k + 1, j], out[k, j], ih)
-
-    return advect_3d
 
 
 @njit(parallel=True, cache=True)

@@ -27,6 +27,7 @@ import scipy.sparse as sp
 from . import _advection, _diffusion
 from ._linsolve import factorize
 from . import _fp_kernels as K
+from ._fp_kernels_3d import rhs_3d_kernel
 from ..grid import DIFFUSIVITY_KEYS, DRIFT_KEYS, Grid
 
 
@@ -124,6 +125,18 @@ class _Operator:
                 # signed D_xz: the kernel forms the exchange coefficients max(+-D_xz, 0)
                 self.C = np.ascontiguousarray(coef.get((1, 1), zero) - coef.get((1, -1), zero))
                 self.k_cross = self.has_cross
+        else:
+            # the fused kernel's axial coefficients (None when diffusion is implicit: the
+            # kernel then reads the workspace's zeros); diagonal exchanges, if any, as a
+            # sparse matrix of those only
+            coef = {off: A for off, A in self.terms if sum(map(abs, off)) == 1}
+            self.axial = None if implicit else tuple(
+                np.ascontiguousarray(coef[off]) for off in ((0, 0, 1), (0, 1, 0), (1, 0, 0)))
+            cross = [(off, A) for off, A in self.terms if sum(map(abs, off)) > 1]
+            self.cross = None
+            if cross and not implicit:
+                self.cross = (_diffusion.operator(cross, shape, self.h),
+                              _diffusion.vertical_flux_operator(cross, shape, self.h))
         self._L = None
         self._Bz = None
         self._lu = {}
@@ -164,11 +177,16 @@ class _Workspace:
         self.R = np.empty(shape)
         fshape = (shape[0] + 1,) + shape[1:]
         self.Fz_acc = np.zeros(fshape)
-        if grid.dims == 2:
-            self.Fz_edge = np.empty((2,) + shape[1:])     # floor and top face fluxes
-        else:
-            self.Fz = np.empty(fshape)
+        self.Fz_edge = np.empty((2,) + shape[1:])     # floor and top face fluxes
         self.stage = [np.empty(shape), np.empty(shape)]
+        self._zero = None
+
+    def zeros(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Zero axial coefficients of this shape for the 3D kernel (advection only),
+        one array made on first use."""
+        if self._zero is None:
+            self._zero = np.zeros(self.R.shape)
+        return self._zero, self._zero, self._zero
 
 
 def _rhs(op: _Operator, P: np.ndarray, ws: _Workspace, w_acc: float,
@@ -201,17 +219,27 @@ def _rhs(op: _Operator, P: np.ndarray, ws: _Workspace, w_acc: float,
         top = ws.Fz_edge[1].sum()
         hm = h
     else:
-        K.advect_3d_kernel(op.limiter)(P, f["x"], f["y"], f["z"], op.eps, h, ws.R, ws.Fz,
-                                       ws.Fz_acc, w_acc)
-        if not op.implicit and len(op.terms):
-            ws.R += (op.L @ P.ravel()).reshape(P.shape)
-            ws.Fz_acc += w_acc * (op.Bz @ P.ravel()).reshape(ws.Fz.shape)
+        cross = op.cross if op.terms else None
+        fused = stage is not None and cross is None
+        if fused:       # the kernel writes the stage itself
+            a, P0, dt, out = stage
+            ca, cb, cc, tiny = a, 1.0 - a, (1.0 - a) * dt, ws.tiny
+        else:
+            out, P0, ca, cb, cc, tiny = ws.R, P, 0.0, 0.0, 1.0, 0.0
+        # no diffusion (implicit, or an operator restricted to advection: op.terms empty)
+        Axx, Ayy, Azz = op.axial if op.axial is not None and op.terms else ws.zeros()
+        rhs_3d_kernel(op.limiter)(P, f["x"], f["y"], f["z"], Axx, Ayy, Azz, op.eps, h, out,
+                                  ws.Fz_edge, ws.Fz_acc, w_acc, P0, ca, cb, cc, tiny)
+        if cross is not None:
+            L, Bz = cross
+            ws.R += (L @ P.ravel()).reshape(P.shape)
+            ws.Fz_acc += w_acc * (Bz @ P.ravel()).reshape(ws.Fz_acc.shape)
         side = (np.vdot(f["x"][:, :, -1], P[:, :, -1]) - np.vdot(f["x"][:, :, 0], P[:, :, 0])
                 + np.vdot(f["y"][:, -1, :], P[:, -1, :]) - np.vdot(f["y"][:, 0, :], P[:, 0, :]))
-        floor = -ws.Fz[0].sum()
-        top = ws.Fz[-1].sum()
+        floor = -ws.Fz_edge[0].sum()
+        top = ws.Fz_edge[1].sum()
         hm = h * h
-        if stage is not None:
+        if stage is not None and not fused:
             a, P0, dt, out = stage
             K.combine(a, P0.ravel(), 1.0 - a, P.ravel(), (1.0 - a) * dt, ws.R.ravel(),
                       out.ravel(), ws.tiny)
