@@ -26,7 +26,7 @@ from _timing import best_time  # noqa: E402
 
 import spotpde  # noqa: E402
 from spotpde import montecarlo as mc, observables as O, tracks as T  # noqa: E402
-from spotpde.calibration._forward import Forward, Targets  # noqa: E402
+from spotpde.calibration._forward import Forward, Targets, observables_for_fit  # noqa: E402
 
 CASE = os.path.join(os.path.dirname(__file__), "..", "cases", "quasi2d_layers.toml")
 
@@ -58,7 +58,7 @@ def main(argv=None):
     data = O.measure(tracks, case, ["velocity", "diffusion"])
     print(f"measure velocity + diffusion from tracks: {time.perf_counter() - t0:.2f} s")
 
-    targets = Targets(data, ["velocity", "diffusion"], stride=4)
+    targets = Targets(data, observables_for_fit(["velocity", "diffusion"]), stride=4)
     keys = ["spots.b", "kernel.height", "orifice.rate"]
     fwd = Forward(case, keys, targets)
     base = [1.3, 0.0024, 21.22]
