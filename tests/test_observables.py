@@ -165,6 +165,27 @@ def test_slot_profile_is_the_kinematic_solution(walls):
     np.testing.assert_allclose(point, kinematic.point_source(x, 2.0, 1.3), rtol=1e-12)
 
 
+@pytest.mark.parametrize("orifice", [Orifice(x=1.0, width=4.0), Orifice(x=-2.0, width=0.0),
+                                     Orifice(x=0.5, width=2.0, profile="gaussian")])
+def test_slot_profile_between_walls_is_the_cosine_series_at_small_and_large_s(orifice):
+    """Between walls, small ``s`` takes the free-space form (the images are below
+    round-off) and large ``s`` the cosine series: both equal the series summed here
+    independently with many terms, on either side of the switch."""
+    x0, x1 = -30.0, 30.0
+    L = x1 - x0
+    x = np.linspace(x0, x1, 301)
+    k = np.arange(1, 3001) * np.pi / L      # exp(-k**2 s) < 1e-40 beyond, at s = 0.05
+    xc, W = orifice.x, orifice.width
+    if orifice.profile == "uniform" and W > 0:
+        coef = (np.sin(k * (xc + W / 2 - x0)) - np.sin(k * (xc - W / 2 - x0))) / (k * W)
+    else:
+        coef = np.cos(k * (xc - x0)) * np.exp(-k**2 * (W / 2) ** 2 / 2)
+    for s in (0.05, 0.5, 2.0, 4.0, 8.0, 30.0):
+        series = 1 / L + 2 / L * (coef * np.cos(np.outer(x - x0, k)) * np.exp(-k**2 * s)).sum(-1)
+        v = kinematic.slot_profile(x, s, orifice, (x0, x1))
+        np.testing.assert_allclose(v, series, rtol=0, atol=1e-9 * series.max())
+
+
 def test_kinematic_width_recovers_b_from_a_kinematic_flow():
     case = spotpde.load_case({**BOX, "orifice": {"x": 0.0, "width": 4.0},
                               "spots": {"b": 1.7}})

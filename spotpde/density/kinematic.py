@@ -105,7 +105,18 @@ def slot_profile(x, s, orifice: Orifice, x_range: tuple[float, float] | None = N
     xc, width = float(orifice.x), float(orifice.width)
     slot = width > 0 and orifice.profile == "uniform"
     sig2 = (0.5 * width) ** 2 if (width > 0 and not slot) else 0.0
-    if walls == "open" or x_range is None:
+    open_ = walls == "open" or x_range is None
+    if not open_:
+        # The cosine series equals the free-space solution plus its images in the walls;
+        # the nearest image is exp(-D**2 / (2 var)) of the peak, D the distance from the
+        # orifice's support to the nearer wall. Below e**-40 (4e-18) it is below round-off
+        # and the free-space form is used: exact to round-off, and it needs no series of
+        # thousands of terms when s is small.
+        half = 0.5 * width if slot else 0.0
+        gap = min(xc - half - float(x_range[0]), float(x_range[1]) - xc - half)
+        var_max = 2.0 * float(np.max(s)) + sig2
+        open_ = gap > 0 and gap * gap > 80.0 * var_max
+    if open_:
         var = 2.0 * s + sig2
         if slot:
             a, c = xc - 0.5 * width, xc + 0.5 * width
