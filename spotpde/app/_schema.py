@@ -8,6 +8,10 @@ and the small nested tables (``orifice.rate``, ``orifice.noise``, coefficient
 profiles, ``tracer.start``, ``tracer.layers``, ``pair.start``). Problems are
 collected, never raised here, as ``"dotted.key: message, got value"``.
 
+Nesting deeper than :data:`MAX_NESTING` is refused before these checks, by
+:mod:`._nesting` (its ``plain``, here ``_plain``, also turns numpy values into plain
+ones).
+
 The checks between keys live in :mod:`._consistency`, the memory estimate in
 :mod:`._resources`; :func:`spotpde.cases.validate` runs the three in turn. The public
 names are re-exported by :mod:`spotpde.cases`.
@@ -21,10 +25,9 @@ import os
 from collections.abc import Mapping
 from typing import Any
 
-import numpy as np
-
 from ..grid import COORDINATES, WALLS
 from ..parameters import ORIFICE_SHAPES, PROFILES, SPOT_MODES, TRACER_MODELS
+from ._nesting import MAX_NESTING, plain as _plain  # noqa: F401 - re-exported
 
 KERNEL_SHAPES = ("uniform", "gaussian", "exponential")
 #: Wall treatments of the influence kernel (``spotpde.fields._walls.WALL_TREATMENTS``).
@@ -80,24 +83,6 @@ def kernel_dims(domain: dict) -> int:
     """Dimension of the spots' kernel: ``domain.dims``, or 3 for an axisymmetric silo
     (its spots are 3D; the grid is the (r, z) half-plane)."""
     return 3 if domain.get("coordinates") == "axisymmetric" else domain["dims"]
-
-
-def _plain(value: Any) -> Any:
-    """A case mapping from Python code with plain TOML types: numpy scalars become
-    ``int``/``float``/``bool``, numpy arrays and tuples lists, paths strings (so that
-    ``{"domain": {"dims": np.int64(2), "x": np.array([-4.0, 4.0])}}`` and
-    ``{"output": {"path": pathlib.Path("r.nc")}}`` are accepted)."""
-    if isinstance(value, Mapping):
-        return {k: _plain(v) for k, v in value.items()}
-    if isinstance(value, np.ndarray):
-        return _plain(value.tolist())
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, os.PathLike):
-        return os.fspath(value)
-    return value
 
 
 def _ellipsoid_measure(radius: float, aspect: float, dims: int) -> float:
