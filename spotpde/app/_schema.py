@@ -26,7 +26,8 @@ from collections.abc import Mapping
 from typing import Any
 
 from ..grid import COORDINATES, WALLS
-from ..parameters import ORIFICE_SHAPES, PROFILES, SPOT_MODES, TRACER_MODELS
+from ..parameters import (HEIGHT_RANGE, ORIFICE_SHAPES, PROFILES, RULE_RANGE, SPOT_MODES,
+                          TRACER_MODELS)
 from ._nesting import MAX_NESTING, plain as _plain  # noqa: F401 - re-exported
 
 KERNEL_SHAPES = ("uniform", "gaussian", "exponential")
@@ -392,7 +393,7 @@ class _Validator:
         if isinstance(value, str):
             self.bad("kernel.rule", 'must be a number in (0, 1] or "kinematic"', value)
             return None
-        return self.number("kernel.rule", value, gt=0, le=1)
+        return self.number("kernel.rule", value, gt=RULE_RANGE[0], le=RULE_RANGE[1])
 
     def _kernel(self, t):
         out = {
@@ -405,7 +406,8 @@ class _Validator:
             "diffusivity": self.choice("kernel.diffusivity", t["diffusivity"], DIFFUSIVITIES),
         }
         if t["height"] is not None:
-            out["height"] = self.number("kernel.height", t["height"], gt=0, le=1)
+            out["height"] = self.number("kernel.height", t["height"], gt=HEIGHT_RANGE[0],
+                                        le=HEIGHT_RANGE[1])
             del out["volume"]
             if "volume" in self.given.get("kernel", ()):
                 self.problems.append("kernel.volume: give either kernel.volume or "
