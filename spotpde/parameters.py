@@ -22,6 +22,17 @@ PROFILES = ("uniform", "gaussian")
 ORIFICE_SHAPES = ("disk", "slot")
 SPOT_MODES = ("steady", "transient")
 TRACER_MODELS = ("spot", "void")
+#: ``(lo, hi)``: a rule lam (``kernel.rule``, ``spotpde compare --rules``) lies in
+#: ``(lo, hi]``, from just after the start of a spot step to its end point.
+RULE_RANGE = (0, 1)
+#: ``(lo, hi)``: a uniform kernel's influence w (``kernel.height``,
+#: ``spotpde.kernels.Uniform(height=)``) lies in ``(lo, hi]``: a spot moves a particle by
+#: at most its own step.
+HEIGHT_RANGE = (0, 1)
+#: A uniform kernel given by its volume (``kernel.volume``) may imply ``w`` up to
+#: ``HEIGHT_RANGE[1] * (1 + VOLUME_ROUNDING)`` (a volume written to four digits), taken as
+#: ``w = 1``.
+VOLUME_ROUNDING = 1e-3
 
 
 @dataclass(frozen=True)

@@ -309,7 +309,7 @@ def test_malformed_and_missing_files(tmp_path):
     binary.write_bytes(b"\xff\xfe\x00")
     with pytest.raises(spotpde.CaseError, match="malformed TOML"):
         load_case(binary)
-    with pytest.raises(spotpde.CaseError, match="must be a path"):
+    with pytest.raises(TypeError, match="^source: must be a path"):
         load_case(42)
 
 

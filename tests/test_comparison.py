@@ -110,9 +110,9 @@ def test_command_line_prints_summary_and_writes_figure(tmp_path, capsys):
     assert len(out) == 2 and out[0].startswith("rule=0.5") and out[1].startswith("rule=1")
     assert fig.stat().st_size > 1000
     assert entry([str(tmp_path / "missing.toml")]) == 2
-    # a ValueError of the library (rule outside [0, 1]): status 2, its message, no figure
+    # a rule outside kernel.rule's range (0, 1]: status 2, one line naming --rules, no figure
     capsys.readouterr()
     bad = tmp_path / "bad.png"
     assert entry([str(case), "--rules", "2", "-o", str(bad)]) == 2
     err = capsys.readouterr()
-    assert err.out == "" and err.err.startswith("rule:") and not bad.exists()
+    assert err.out == "" and err.err.startswith("--rules:") and not bad.exists()

@@ -30,6 +30,7 @@ import xarray as xr
 import spotpde
 from spotpde.app import io as sio
 from spotpde.app.cases import estimate_bytes, kernel_halfwidths, load_case, validate
+from conftest import session_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -58,7 +59,7 @@ frames = 3
 BIG = FIELDS.replace("x = [-4.0, 4.0]", "x = [-16.0, 16.0]").replace(
     "z = [0.0, 8.0]", "z = [0.0, 32.0]").replace("spacing = 0.5", "spacing = 0.25")
 
-_CACHE = tempfile.mkdtemp(prefix="spotpde-faults-cache-")
+_CACHE = str(session_dir("faults-cache"))   # removed with the session (conftest)
 
 
 def cli(*args, cwd, env=None, timeout=300, prefix=(), **popen):

@@ -7,7 +7,6 @@ import os
 import signal
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 from pathlib import Path
@@ -21,9 +20,10 @@ from spotpde.app import sweep
 from spotpde.app.cli import main
 from spotpde.app import io as sio
 from spotpde.errors import CaseError, NumericalError
+from conftest import session_dir
 
 ROOT = Path(__file__).resolve().parents[1]
-_CACHE = tempfile.mkdtemp(prefix="spotpde-sweep-cache-")
+_CACHE = str(session_dir("sweep-cache"))   # removed with the session (conftest)
 
 BASE = {
     "domain": {"dims": 2, "x": [-4.0, 4.0], "z": [0.0, 6.0], "spacing": 0.5},

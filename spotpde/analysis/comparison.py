@@ -36,9 +36,10 @@ from scipy.optimize import OptimizeWarning, curve_fit
 from ..fields import coefficients
 from ..density import kinematic, spot_density
 from ..grid import Grid
+from ..parameters import RULE_RANGE
 
-__all__ = ["KinematicComparison", "compare_with_kinematic", "compare_rules", "gaussian_width2",
-           "plot_comparison"]
+__all__ = ["KinematicComparison", "compare_with_kinematic", "compare_rules", "case_problems",
+           "gaussian_width2", "plot_comparison"]
 
 
 @dataclasses.dataclass
@@ -134,6 +135,76 @@ def _parts(case_or_parts):
     return c.grid, c.orifice, c.spots, c.kernel, c.rule, None
 
 
+def _compared_rows(grid: Grid, kernel, z_min: float | None = None) -> np.ndarray:
+    """Indices of the compared heights: from ``z_min`` (default 10 % of the height) up to
+    the kernel's vertical reach below the top (no spots above it)."""
+    z0, z1 = grid.z_range
+    z_min = z0 + 0.1 * (z1 - z0) if z_min is None else float(z_min)
+    top = z1 - float(kernel.reach[1]) - grid.spacing
+    return np.nonzero((grid.z >= z_min) & (grid.z <= top))[0]
+
+
+def _compared_cols(grid: Grid, kernel) -> np.ndarray:
+    """Indices of the columns farther than the kernel's reach from the side walls (near a
+    wall the zero padding, no particles or spots beyond it, lowers ``v_spot``: reported
+    as ``flux_deficit``)."""
+    reach_h = float(kernel.reach[0])
+    x0, x1 = grid.x_range
+    return np.nonzero((grid.x - x0 > reach_h) & (x1 - grid.x > reach_h))[0]
+
+
+def case_problems(case, rules: Sequence[float] = ()) -> list[str]:
+    """What keeps :func:`compare_rules` from comparing a validated case with the
+    Kinematic Model, one line per problem naming the case key (``spotpde compare``
+    prints them and exits with status 2).
+
+    Args:
+        case: a :class:`spotpde.cases.Case`.
+        rules: the rules ``lam`` asked for (``spotpde compare --rules``): each in
+            ``kernel.rule``'s range (0, 1].
+
+    Returns:
+        The problems (empty: the comparison can run).
+    """
+    problems = []
+    lo, hi = RULE_RANGE
+    bad = [r for r in rules if not lo < r <= hi]
+    if bad:
+        problems.append(f"--rules: each rule must be in ({lo:g}, {hi:g}] like kernel.rule, "
+                        f"got {', '.join(f'{r:g}' for r in bad)}")
+    d, o, s = case.data["domain"], case.data["orifice"], case.data["spots"]
+    if case.grid.axisymmetric:
+        problems.append('domain.coordinates: the comparison fits profiles across a '
+                        'Cartesian box; "axisymmetric" is not supported')
+    if d.get("hopper_angle") is not None:
+        problems.append("domain.hopper_angle: the comparison needs a flat floor (see "
+                        "notebooks/hoppers.ipynb for hopper flows)")
+    if s.get("rho_max") is not None:
+        problems.append("spots.rho_max: interacting spots have no steady state to compare "
+                        "with the steady Kinematic Model; remove spots.rho_max (and "
+                        'spots.mode = "transient") to compare spots that do not interact')
+    if isinstance(o["rate"], Mapping) or o.get("noise") is not None:
+        key = "orifice.noise" if o.get("noise") is not None else "orifice.rate"
+        problems.append(f"{key}: the comparison needs a constant rate Q0 (the steady flow)")
+    for key in ("b", "drift"):
+        if isinstance(s[key], Mapping):
+            problems.append(f"spots.{key}: the Kinematic Model has one b and one speed; "
+                            "give a number, not a profile")
+    if problems:
+        return problems
+    kernel = case.kernel
+    rows = _compared_rows(case.grid, kernel)
+    if rows.size < 3:
+        problems.append(f"domain.z: too short to compare: {rows.size} heights between 10 % "
+                        "of the height and the kernel's vertical reach "
+                        f"({float(kernel.reach[1]):g} d) below the top, need 3")
+    if _compared_cols(case.grid, kernel).size < 5:
+        problems.append(f"domain.x: too narrow to compare: fewer than 5 columns farther "
+                        f"than the kernel's reach ({float(kernel.reach[0]):g} d) from the "
+                        "side walls")
+    return problems
+
+
 def gaussian_width2(x: np.ndarray, profile: np.ndarray) -> float:
     """Squared width ``s**2`` of a least-squares Gaussian ``A exp(-(x - x0)**2 / (2 s**2))``.
 
@@ -211,8 +282,11 @@ def compare_with_kinematic(case_or_parts, rule: float | None = None, *, z_min: f
                          "for hopper flows)")
     lam = float(case_rule if rule is None else rule)
     if np.ndim(spots.b) != 0 or np.ndim(spots.drift) != 0:
-        raise ValueError("compare_with_kinematic: spots.b and spots.drift must be uniform "
+        raise ValueError("case_or_parts: spots.b and spots.drift must be uniform "
                          "(the kinematic model has one b)")
+    if rho_s is None and spots.rho_max is not None:
+        raise ValueError("case_or_parts: interacting spots (spots.rho_max) have no steady "
+                         "spot density to compare; give rho_s")
     b = float(spots.b)
     shared = {} if _shared is None else _shared
     if rho_s is None:
@@ -235,22 +309,18 @@ def compare_with_kinematic(case_or_parts, rule: float | None = None, *, z_min: f
 
     h = grid.spacing
     z0, z1 = grid.z_range
-    z_min = z0 + 0.1 * (z1 - z0) if z_min is None else float(z_min)
-    # heights below the top by more than the kernel's vertical reach (no spots above it)
-    rows = np.nonzero((grid.z >= z_min) & (grid.z <= z1 - float(kernel.reach[1]) - h))[0]
+    rows = _compared_rows(grid, kernel, z_min)
     if rows.size < 3:
         raise ValueError(f"z_min: leaves {rows.size} heights to compare, need at least 3")
     yi = int(np.argmin(np.abs(grid.y - (orifice.y if orifice.y is not None else grid.y_centre)))) \
         if grid.dims == 3 else 0
 
-    # columns farther than the kernel's reach from the side walls (near a wall the zero
-    # padding, no particles or spots beyond it, lowers v_spot: reported as flux_deficit)
     reach_h = float(kernel.reach[0])
     x0, x1 = grid.x_range
-    cols = np.nonzero((grid.x - x0 > reach_h) & (x1 - grid.x > reach_h))[0]
+    cols = _compared_cols(grid, kernel)
     if cols.size < 5:
-        raise ValueError(f"grid: the domain is too narrow for the kernel reach {reach_h:g} d "
-                         "to leave columns away from the walls")
+        raise ValueError(f"case_or_parts: the domain is too narrow for the kernel reach "
+                         f"{reach_h:g} d to leave columns away from the walls")
     sel = np.ix_(rows, cols)
     full_v_spot = _row(grid, -flow["u_z"], yi)
     horizontal_axes = tuple(range(1, grid.dims))

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 
+from ..parameters import HEIGHT_RANGE, VOLUME_ROUNDING
 from ._schema import _ellipsoid_measure, _show, _Validator, kernel_dims
 
 
@@ -106,7 +107,8 @@ def check_consistency(v: _Validator, data: dict) -> None:
     # kernel
     if k["shape"] == "uniform" and "volume" in k:
         w = k["volume"] / _ellipsoid_measure(k["size"], k["aspect"], kernel_dims(d))
-        if w > 1.001:   # w = 1 (the void model's spot), volume rounded to 4 digits, is fine
+        if w > HEIGHT_RANGE[1] * (1 + VOLUME_ROUNDING):   # w = 1 (the void model's spot),
+            # volume rounded to 4 digits, is fine
             v.bad("kernel.volume", f'with shape = "uniform" and kernel.size = '
                   f'{_show(k["size"])} implies the influence w = volume / spot '
                   f"{'area' if dims == 2 else 'volume'} = {w:.3g} > 1 (a spot moves "

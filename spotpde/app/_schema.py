@@ -8,6 +8,10 @@ and the small nested tables (``orifice.rate``, ``orifice.noise``, coefficient
 profiles, ``tracer.start``, ``tracer.layers``, ``pair.start``). Problems are
 collected, never raised here, as ``"dotted.key: message, got value"``.
 
+Nesting deeper than :data:`MAX_NESTING` is refused before these checks, by
+:mod:`._nesting` (its ``plain``, here ``_plain``, also turns numpy values into plain
+ones).
+
 The checks between keys live in :mod:`._consistency`, the memory estimate in
 :mod:`._resources`; :func:`spotpde.cases.validate` runs the three in turn. The public
 names are re-exported by :mod:`spotpde.cases`.
@@ -21,10 +25,10 @@ import os
 from collections.abc import Mapping
 from typing import Any
 
-import numpy as np
-
 from ..grid import COORDINATES, WALLS
-from ..parameters import ORIFICE_SHAPES, PROFILES, SPOT_MODES, TRACER_MODELS
+from ..parameters import (HEIGHT_RANGE, ORIFICE_SHAPES, PROFILES, RULE_RANGE, SPOT_MODES,
+                          TRACER_MODELS)
+from ._nesting import MAX_NESTING, plain as _plain  # noqa: F401 - re-exported
 
 KERNEL_SHAPES = ("uniform", "gaussian", "exponential")
 #: Wall treatments of the influence kernel (``spotpde.fields._walls.WALL_TREATMENTS``).
@@ -80,24 +84,6 @@ def kernel_dims(domain: dict) -> int:
     """Dimension of the spots' kernel: ``domain.dims``, or 3 for an axisymmetric silo
     (its spots are 3D; the grid is the (r, z) half-plane)."""
     return 3 if domain.get("coordinates") == "axisymmetric" else domain["dims"]
-
-
-def _plain(value: Any) -> Any:
-    """A case mapping from Python code with plain TOML types: numpy scalars become
-    ``int``/``float``/``bool``, numpy arrays and tuples lists, paths strings (so that
-    ``{"domain": {"dims": np.int64(2), "x": np.array([-4.0, 4.0])}}`` and
-    ``{"output": {"path": pathlib.Path("r.nc")}}`` are accepted)."""
-    if isinstance(value, Mapping):
-        return {k: _plain(v) for k, v in value.items()}
-    if isinstance(value, np.ndarray):
-        return _plain(value.tolist())
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, os.PathLike):
-        return os.fspath(value)
-    return value
 
 
 def _ellipsoid_measure(radius: float, aspect: float, dims: int) -> float:
@@ -407,7 +393,7 @@ class _Validator:
         if isinstance(value, str):
             self.bad("kernel.rule", 'must be a number in (0, 1] or "kinematic"', value)
             return None
-        return self.number("kernel.rule", value, gt=0, le=1)
+        return self.number("kernel.rule", value, gt=RULE_RANGE[0], le=RULE_RANGE[1])
 
     def _kernel(self, t):
         out = {
@@ -420,7 +406,8 @@ class _Validator:
             "diffusivity": self.choice("kernel.diffusivity", t["diffusivity"], DIFFUSIVITIES),
         }
         if t["height"] is not None:
-            out["height"] = self.number("kernel.height", t["height"], gt=0, le=1)
+            out["height"] = self.number("kernel.height", t["height"], gt=HEIGHT_RANGE[0],
+                                        le=HEIGHT_RANGE[1])
             del out["volume"]
             if "volume" in self.given.get("kernel", ()):
                 self.problems.append("kernel.volume: give either kernel.volume or "

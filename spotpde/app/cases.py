@@ -32,6 +32,7 @@ from ..errors import CaseError
 from ..grid import Grid, Hopper
 from ..parameters import Orifice, Spots, Tracer, TracerStart
 from ._consistency import check_consistency
+from ._nesting import MAX_NESTING, text_problem
 from ._resources import (BASELINE_BYTES, MEMORY_FRACTION, auto_snapshots, available_memory,
                          estimate_bytes, kernel_halfwidths, memory_problem)
 from ._schema import (DEFAULTS, DIFFUSION_MODES, DIFFUSION_SCALINGS, DIFFUSIVITIES,
@@ -48,7 +49,7 @@ __all__ = [
     "DEFAULTS", "KERNEL_SHAPES", "KERNEL_WALLS", "LIMITERS", "DIFFUSION_MODES",
     "DIFFUSIVITIES", "STEPPING_MODES", "FLUX_SHAPES", "DIFFUSION_SCALINGS", "RATE_TABLE_KEYS",
     "PROFILE_KEYS", "NOISE_KEYS", "START_KEYS", "LAYERS_KEYS", "PAIR_START_KEYS",
-    "MAX_LENGTH", "MAX_FRAMES", "MEMORY_FRACTION", "BASELINE_BYTES",
+    "MAX_LENGTH", "MAX_FRAMES", "MAX_NESTING", "MEMORY_FRACTION", "BASELINE_BYTES",
 ]
 
 
@@ -198,45 +199,67 @@ def load_case(source: str | os.PathLike | Mapping, *, frames_in_memory: bool = T
     """Read and validate a case.
 
     Args:
-        source: path of a TOML case file, or a mapping with the same tables and keys.
+        source: path of a TOML case file; TOML text (a string holding a line break,
+            which no file name does); or a mapping with the same tables and keys.
         frames_in_memory: count the tracer frames in the memory check. ``False`` for a
             run that streams them to its result file (``spotpde.run(case, path=...)``,
             what ``spotpde run`` does).
 
     Returns:
-        The validated :class:`Case`.
+        The validated :class:`Case` (``source`` is ``None`` unless read from a file).
 
     Raises:
+        TypeError: ``source`` is none of these.
         spotpde.CaseError: one line per problem (unreadable file, malformed TOML,
-            unknown or mistyped key, value out of range, inconsistent keys, a grid
-            too large for memory).
+            tables or lists nested more than ``MAX_NESTING`` deep, unknown or
+            mistyped key, value out of range, inconsistent keys, a grid too large for
+            memory).
     """
     text = None
     path = None
     if isinstance(source, Mapping):
         raw = source
+    elif isinstance(source, str) and "\n" in source:     # TOML text, not a file name
+        text = source.removeprefix("\ufeff")
+        raw = _parse_toml(text, "case text")
     elif isinstance(source, (str, os.PathLike)):
         path = os.fspath(source)
         try:
             with open(path, "rb") as fh:
                 blob = fh.read()
         except OSError as exc:
-            raise CaseError(f"{path}: cannot read the case file ({exc.strerror or exc})") from None
+            hint = ("; TOML text (not a file name) must hold a line break"
+                    if isinstance(path, str) and "=" in path else "")
+            raise CaseError(f"{path}: cannot read the case file "
+                            f"({exc.strerror or exc}){hint}") from None
         try:
             text = blob.decode("utf-8-sig")   # a byte-order mark (some editors) is fine
-            raw = tomllib.loads(text)
         except UnicodeDecodeError:
             raise CaseError(f"{path}: malformed TOML: not UTF-8 text") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise CaseError(f"{path}: malformed TOML: {exc}") from None
+        raw = _parse_toml(text, path)
     else:
-        raise CaseError(
-            f"case: must be a path to a TOML file or a mapping, got {type(source).__name__}")
+        raise TypeError("source: must be a path to a TOML file, TOML text or a mapping, "
+                        f"got {type(source).__name__}")
     data = validate(raw, frames_in_memory=frames_in_memory)
     case = Case(data, text, path)
     _check_kernel(case)
     _warn_wide_kernel(data)
     return case
+
+
+def _parse_toml(text: str, where: str) -> dict:
+    """``tomllib.loads(text)``, nesting checked first (:mod:`._nesting`); problems as a
+    :class:`CaseError` starting with ``where`` (the file, or ``"case text"``)."""
+    problem = text_problem(text)
+    if problem is not None:
+        raise CaseError(f"{where}: malformed TOML: {problem}")
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise CaseError(f"{where}: malformed TOML: {exc}") from None
+    except RecursionError:        # the scan above leaves tomllib no reason to recurse
+        raise CaseError(f"{where}: malformed TOML: nested too deeply to read (at most "
+                        f"{MAX_NESTING} nested tables and lists in a case)") from None
 
 
 def validate(raw: Mapping, *, frames_in_memory: bool = True) -> dict:

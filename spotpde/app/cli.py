@@ -303,16 +303,20 @@ def cmd_compare(args) -> int:
     heights of :meth:`spotpde.comparison.KinematicComparison.summary` (``key=value``;
     speeds in d per unit time, lengths in d); with ``-o`` also writes the comparison
     figure (:func:`spotpde.comparison.plot_comparison`). Exit status 0, or 2 for an
-    invalid case or one the comparison cannot use (a ``ValueError``, e.g. a non-uniform
-    ``spots.b``: its message on standard error).
+    invalid case, a rule outside ``kernel.rule``'s range (0, 1], or a case the comparison
+    cannot use (:func:`spotpde.comparison.case_problems`, e.g. a profile of ``spots.b``:
+    one line per problem naming the key, on standard error).
     """
     from .cases import load_case
-    from ..analysis.comparison import compare_rules, plot_comparison
+    from ..analysis.comparison import case_problems, compare_rules, plot_comparison
 
     if args.output:
         _check_outputs([("-o", args.output, FIGURE_FORMATS)], inputs=[args.case])
     try:
         case = load_case(args.case)
+        problems = case_problems(case, args.rules)   # by case key and --rules
+        if problems:
+            raise CaseError(problems)
         results = compare_rules(case, args.rules)
     except (CaseError, ValueError) as exc:
         _say(str(exc))

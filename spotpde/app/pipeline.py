@@ -29,6 +29,7 @@ import contextlib
 import importlib
 import math
 import os
+from collections.abc import Mapping
 from typing import Callable
 
 import numpy as np
@@ -71,6 +72,8 @@ def run(case: Case | str, progress: Progress | None = None, *,
         The result :class:`xarray.Dataset` (lengths in d, times in the case unit).
 
     Raises:
+        TypeError: ``case``, ``path``, ``progress`` or ``on_fields`` of the wrong type
+            (named).
         spotpde.CaseError: invalid case (only when ``case`` is a path or mapping).
         ValueError: ``path`` cannot be written (missing or read-only directory, an
             existing directory or device, the case file itself), checked before computing.
@@ -79,6 +82,7 @@ def run(case: Case | str, progress: Progress | None = None, *,
             ``CaseError`` raised inside a stage, re-raised with its lines), or a result
             holds NaN or infinity.
     """
+    _check_arguments(case, path, progress, on_fields)
     if not isinstance(case, Case):
         case = load_case(case)
     if path is not None:   # before computing: a missing or read-only directory, ...
@@ -123,6 +127,19 @@ def run(case: Case | str, progress: Progress | None = None, *,
         # failure, not an invalid case.
         lines = err.problems if isinstance(err, CaseError) else str(err).splitlines()
         raise NumericalError("; ".join(lines)) from None
+
+
+def _check_arguments(case, path, progress, on_fields) -> None:
+    """TypeError naming the argument of :func:`run` that has the wrong type."""
+    if not isinstance(case, (Case, str, os.PathLike, Mapping)):
+        raise TypeError("case: must be a Case, a case file name, TOML text or a mapping, "
+                        f"got {type(case).__name__}")
+    if path is not None and not isinstance(path, (str, os.PathLike)):
+        raise TypeError(f"path: must be a file name (str or os.PathLike) or None, got "
+                        f"{type(path).__name__}")
+    for name, f in (("progress", progress), ("on_fields", on_fields)):
+        if f is not None and not callable(f):
+            raise TypeError(f"{name}: must be callable or None, got {type(f).__name__}")
 
 
 def _run(case: Case, progress: Progress | None, open_frames=None,

@@ -105,6 +105,27 @@ def _parse_value(text: str) -> Any:
         return text
 
 
+def _check_settings(settings: Mapping) -> None:
+    """Settings given as a mapping from Python: ValueError / TypeError naming
+    ``settings[KEY]`` for what ``--set`` would refuse (a key that is not dotted or cannot
+    be swept, no values, a string or a number instead of a list of values)."""
+    if not isinstance(settings, Mapping):
+        raise TypeError(f"settings: must be a mapping {{key: [values]}}, got "
+                        f"{type(settings).__name__}")
+    for key, values in settings.items():
+        name = f"settings[{key!r}]"
+        if not isinstance(key, str) or key.count(".") < 1:
+            raise ValueError(f"{name}: expected a dotted case key table.key "
+                             "(e.g. \"kernel.size\")")
+        if key in FIXED_KEYS:
+            raise ValueError(f"{name}: cannot be swept (it changes the grid or the output)")
+        if isinstance(values, (str, bytes, Mapping)) or not isinstance(
+                values, (Sequence, np.ndarray)):
+            raise TypeError(f"{name}: must be a list of values, got {type(values).__name__}")
+        if len(values) == 0:
+            raise ValueError(f"{name}: has no values; give at least one")
+
+
 def members(case: Case, settings: Mapping[str, Sequence]) -> list[tuple[tuple, Case]]:
     """Every combination of the swept values as a validated case.
 
@@ -116,11 +137,14 @@ def members(case: Case, settings: Mapping[str, Sequence]) -> list[tuple[tuple, C
         ``[(values, member_case), ...]`` in row-major order of the swept keys.
 
     Raises:
+        ValueError, TypeError: ``settings[KEY]`` with no values, not a list, or a key
+            that cannot be swept.
         spotpde.CaseError: every problem of every invalid member, each line naming the
             key and the member it belongs to.
     """
     if not settings:
         raise CaseError("--set: give at least one KEY=V1,V2,... to sweep")
+    _check_settings(settings)
     out, problems = [], []
     for values in itertools.product(*settings.values()):
         data = copy.deepcopy(case.data)
@@ -215,8 +239,9 @@ def sweep_case(
     """Run a parameter sweep and combine the members into one Dataset.
 
     Args:
-        case: base case (a :class:`Case`, a path, or a mapping).
-        settings: values by dotted key, or ``--set`` strings for :func:`parse_settings`.
+        case: base case (a :class:`Case`, a path, TOML text, or a mapping).
+        settings: values by dotted key (each a non-empty list), or ``--set`` strings for
+            :func:`parse_settings` (a list of them, or one string).
         output: the combined netCDF file to write (atomically); its member files go to
             ``<output>.members/``. ``None``: the base case's ``output.path``.
         scheduler: address of a running Dask scheduler, or a ``distributed.Client``;
@@ -229,13 +254,29 @@ def sweep_case(
         The combined Dataset (also written to ``output``).
 
     Raises:
+        TypeError, ValueError: ``case`` or ``settings`` of the wrong type or empty
+            (named), before anything is written.
         spotpde.CaseError: invalid settings or an invalid member (before any work).
     """
     from .io import read_netcdf, write_netcdf
 
+    if not isinstance(case, (Case, str, os.PathLike, Mapping)):
+        raise TypeError("case: must be a Case, a case file name, TOML text or a mapping, "
+                        f"got {type(case).__name__}")
+    if output is not None and not isinstance(output, (str, os.PathLike)):
+        raise TypeError(f"output: must be a file name (str or os.PathLike) or None, got "
+                        f"{type(output).__name__}")
     if not isinstance(case, Case):
         case = load_case(case)
+    if isinstance(settings, str):          # one --set item
+        settings = [settings]
+    if not isinstance(settings, (Mapping, Sequence)):
+        raise TypeError("settings: must be a mapping {key: [values]} or a list of "
+                        f"\"KEY=V1,V2\" strings, got {type(settings).__name__}")
     if not isinstance(settings, Mapping):
+        if not all(isinstance(item, str) for item in settings):
+            raise TypeError("settings: a list of \"KEY=V1,V2\" strings must hold strings "
+                            "only")
         settings = parse_settings(settings)
     todo_members = members(case, settings)
     output = Path(os.path.abspath(output if output is not None else case.output_path))

@@ -48,14 +48,29 @@ def point_source(x, z, b, dims: int = 2):
     Returns:
         ``v`` in 1/d**(dims-1) (times the flow rate for a speed), broadcast shape
         (a float for scalar input).
+
+    Raises:
+        ValueError: naming the argument (``x``, ``z``, ``b``, ``dims``) that is not a
+            number, not finite (``x``, ``b``), out of range or of a shape that does not
+            broadcast.
     """
-    if dims not in (2, 3):
+    if isinstance(dims, bool) or dims not in (2, 3):
         raise ValueError(f"dims: must be 2 or 3, got {dims!r}")
-    if not np.all(np.asarray(b) > 0):
-        raise ValueError(f"b: must be > 0, got {b!r}")
-    x = np.asarray(x, dtype=float)
-    z = np.asarray(z, dtype=float)
-    x, z = np.broadcast_arrays(x, z)
+    x, z, b = (_real(name, value) for name, value in (("x", x), ("z", z), ("b", b)))
+    if not np.all(np.isfinite(x)):
+        raise ValueError("x: must be finite")
+    if not np.all((b > 0) & np.isfinite(b)):
+        raise ValueError("b: must be > 0 and finite")
+    if np.isnan(z).any():
+        raise ValueError("z: must not be NaN")
+    try:
+        x, z = np.broadcast_arrays(x, z)
+        if np.ndim(b):
+            np.broadcast_to(b, x.shape)
+    except ValueError:
+        raise ValueError(f"x, z, b: shapes {np.shape(x)}, {np.shape(z)} and {np.shape(b)} "
+                         "do not broadcast together") from None
+    b = float(b) if np.ndim(b) == 0 else b
     out = np.zeros(x.shape)
     pos = z > 0
     zz = z[pos]
@@ -64,6 +79,18 @@ def point_source(x, z, b, dims: int = 2):
     out[pos] = g / np.sqrt(np.pi * four_bz) if dims == 2 else g / (np.pi * four_bz)
     out[(z == 0) & (x == 0)] = np.inf
     return float(out) if out.ndim == 0 else out
+
+
+def _real(name: str, value) -> np.ndarray:
+    """``value`` as a float array, or a ValueError naming ``name``."""
+    try:
+        out = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: must be a number or an array of numbers, "
+                         f"got {value!r:.60}") from None
+    if isinstance(value, (bool, np.bool_)) or np.asarray(value).dtype == bool:
+        raise ValueError(f"{name}: must be a number or an array of numbers, got {value!r}")
+    return out
 
 
 def slot_profile(x, s, orifice: Orifice, x_range: tuple[float, float] | None = None,

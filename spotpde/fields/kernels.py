@@ -41,6 +41,7 @@ import math
 import numpy as np
 from scipy import special
 
+from ..parameters import HEIGHT_RANGE, VOLUME_ROUNDING
 from . import _cellavg
 
 __all__ = [
@@ -341,9 +342,14 @@ class Uniform(Kernel):
 
     Args:
         radius: horizontal radius R in d.
-        height: w inside the spot (dimensionless, e.g. 0.0024).
+        height: w inside the spot (dimensionless, e.g. 0.0024), in (0, 1] as
+            ``kernel.height`` (``spotpde.parameters.HEIGHT_RANGE``): a spot moves a
+            particle by at most its own step.
         dims: 2 or 3.
         aspect: horizontal / vertical radius.
+
+    Raises:
+        ValueError: naming the argument out of range.
     """
 
     shape_name = "uniform"
@@ -354,6 +360,10 @@ class Uniform(Kernel):
         self.dims = _check_dims(dims)
         self.a_h = _positive("radius", radius)
         self.amplitude = _positive("height", height)
+        if not self.amplitude <= HEIGHT_RANGE[1]:
+            raise ValueError(f"height must be in ({HEIGHT_RANGE[0]:g}, {HEIGHT_RANGE[1]:g}] "
+                             "(a spot moves a particle by at most its own step), "
+                             f"got {height!r}")
         self.aspect = _positive("aspect", aspect)
 
     @property
@@ -545,7 +555,9 @@ def from_spec(shape: str, size: float, volume: float, aspect: float = 1.0, dims:
         shape: ``"uniform"``, ``"gaussian"`` or ``"exponential"``.
         size: horizontal radius R, sigma, or decay length, in d.
         volume: V1 = int w, in d**dims. For ``"uniform"`` the height is
-            ``V1 / (pi R_h R_z)`` (2D) or ``V1 / (4/3 pi R_h^2 R_z)`` (3D).
+            ``V1 / (pi R_h R_z)`` (2D) or ``V1 / (4/3 pi R_h^2 R_z)`` (3D), at most 1
+            (``kernel.volume``: up to ``1 + VOLUME_ROUNDING`` for a volume written to
+            four digits).
         aspect: horizontal size / vertical size.
         dims: 2 or 3.
 
@@ -564,7 +576,14 @@ def from_spec(shape: str, size: float, volume: float, aspect: float = 1.0, dims:
     if shape == "uniform":
         unit = math.pi if dims == 2 else 4.0 * math.pi / 3.0
         height = volume / (unit * size ** (dims - 1) * (size / aspect))
-        return Uniform(radius=size, height=height, dims=dims, aspect=aspect)
+        if not height <= HEIGHT_RANGE[1] * (1 + VOLUME_ROUNDING):
+            raise ValueError(f"volume: a uniform kernel of size {size:g} with volume "
+                             f"{volume:g} has the influence w = {height:.3g} > 1 (a spot "
+                             "moves a particle by at most its own step)")
+        kernel = Uniform(radius=size, height=min(height, HEIGHT_RANGE[1]), dims=dims,
+                         aspect=aspect)
+        kernel.amplitude = height    # V1 as given (w a rounding above 1 allowed)
+        return kernel
     if shape == "gaussian":
         return Gaussian(sigma=size, volume=volume, dims=dims, aspect=aspect)
     return Exponential(length=size, volume=volume, dims=dims, aspect=aspect)

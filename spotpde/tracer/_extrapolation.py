@@ -10,16 +10,29 @@ the hybrid advection of the fast faces for IMEX) by ``tau`` from ``p``:
 
 ``theta = 1`` is the extrapolation ``2 Pb - Pa`` (local error ``O(tau**3)``), ``theta =
 0`` two backward-Euler half steps. The weights ``theta in [0, 1]`` are chosen cell by
-cell to keep ``P_new >= -eps`` (docs/long_runs.md): cell ``i`` can lose at most ``Pb_i +
-eps`` through the negative terms ``A_ij theta_j delta_j`` (``delta_j < 0``, ``A_ij >=
-0``) and ``A_ii theta_i delta_i`` (``delta_i > 0``); these are scaled by ``R_i = min(1,
-(Pb_i + eps) / -N_i)``, ``N_i`` their sum at ``theta = 1``, and ``theta_j`` is the
-smallest ``R`` of the cells ``delta_j`` takes from (itself if ``delta_j > 0``, the rows
-of column ``j`` if ``< 0``). ``S`` (the running ``int P dt``) gives the fluxes, so
-``P_new - p = A (S_new - S)`` to round-off: conservative. An operator with negative
-off-diagonals (a diffusion tensor that is not diagonally dominant, which the solver
-warns of) is applied as it is, so conservation holds; the limiter then counts only the
-non-negative entries and positivity is not guaranteed.
+cell to keep ``P_new >= -eps`` (docs/long_runs.md): cell ``i`` can lose at most
+``(1 - LIMIT_MARGIN) max(Pb_i + eps, 0)`` through the negative terms ``A_ij theta_j
+delta_j`` (``delta_j < 0``, ``A_ij >= 0``) and ``A_ii theta_i delta_i`` (``delta_i >
+0``); these are scaled by ``R_i = min(1, (1 - LIMIT_MARGIN) max(Pb_i + eps, 0) /
+-N_i)``, ``N_i`` their sum at ``theta = 1``, and ``theta_j`` is the smallest ``R`` of
+the cells ``delta_j`` takes from (itself if ``delta_j > 0``, the rows of column ``j``
+if ``< 0``). ``S`` (the running ``int P dt``) gives the fluxes, so ``P_new - p = A
+(S_new - S)`` to round-off: conservative. An operator with negative off-diagonals (a
+diffusion tensor that is not diagonally dominant, which the solver warns of) is applied
+as it is, so conservation holds; the limiter then counts only the non-negative entries
+and positivity is not guaranteed.
+
+**Positivity in floating point.** In exact arithmetic the limited loss ``Pb_i + eps``
+gives ``P_new_i >= -eps``; computed, the sum ``Pb_i + (terms)`` carries a rounding
+error of up to about ``(m + 1) u (Pb_i + |terms|)`` (``u = 2**-53``, ``m`` the entries
+of row ``i``), enough to end a few ulps of ``Pb_i`` below ``-eps`` (``-1.0000000019731e-15``
+against ``eps = 1e-15`` with ``Pb_i = 8.5e-9``). :data:`LIMIT_MARGIN` holds back a
+relative ``256 u`` of the allowed loss, more than the ``(4 m + 9) u`` the rounding of
+the limiter (``N_i``, ``R_i``, the products ``theta delta`` and ``A c``) and of that sum
+can take for rows of up to 61 entries (a 3D 27-point stencil has 27). So wherever
+``Pb_i >= 0`` (always: the solves are of M-matrices, sums of non-negative terms)
+``P_new_i >= -eps`` holds exactly as computed, not only to round-off; the held-back
+fraction changes ``P_new`` by at most ``LIMIT_MARGIN (Pb_i + eps)``.
 
 Two kernels compute the same numbers to round-off:
 
@@ -41,6 +54,10 @@ import numpy as np
 import scipy.sparse as sp
 
 from ._linsolve import _Tridiagonal, thomas_rows, thomas_rows_pair
+
+#: The fraction of a cell's allowed loss ``Pb_i + eps`` the limiter holds back, so that
+#: ``P_new >= -eps`` survives the rounding of the step (module docstring): ``256 u``.
+LIMIT_MARGIN = 256 * 2.0**-53
 
 
 class Extrapolation:
@@ -68,30 +85,33 @@ class Extrapolation:
             if not (lower[::nx].any() or upper[nx - 1::nx].any()):
                 self.nx, self.lower, self.upper = nx, lower, upper
 
-    def __call__(self, lu, lu_half, p, tau, eps, S, tiny=0.0):
+    def __call__(self, lu, lu_half, p, tau, eps, S, tiny=0.0, margin=LIMIT_MARGIN):
         """``(P_new, min theta)`` from ``p`` over ``tau``; ``lu`` / ``lu_half`` the factors
         of ``I - tau A`` / ``I - tau/2 A``; ``S`` is updated in place; ``tiny``: values of
-        the row solves below it are 0 (tridiagonal path)."""
+        the row solves below it are 0 (tridiagonal path); ``margin``: the fraction of
+        the allowed loss held back (:data:`LIMIT_MARGIN`)."""
         p = np.ascontiguousarray(p, dtype=float)
+        keep = 1.0 - margin
         if self.nx is not None and isinstance(lu, _Tridiagonal) and \
                 isinstance(lu_half, _Tridiagonal):
             return _extrapolate_rows(self.nx, lu.m, lu.inv, lu.du, lu_half.m, lu_half.inv,
                                      lu_half.du, self.lower, self.upper, self.diag, p, tau,
-                                     eps, tiny, S)
+                                     eps, tiny, S, keep)
         Pa = lu.solve(p)
         P1 = lu_half.solve(p)
         Pb = lu_half.solve(P1)
-        return _extrapolate(self.offsets, self.data, self.diag, Pa, P1, Pb, tau, eps, S)
+        return _extrapolate(self.offsets, self.data, self.diag, Pa, P1, Pb, tau, eps, S,
+                            keep)
 
 
 @numba.njit(cache=True)
-def _extrapolate(offsets, data, diag, Pa, P1, Pb, tau, eps, S):
+def _extrapolate(offsets, data, diag, Pa, P1, Pb, tau, eps, S, keep):
     """The extrapolation from the three solves (module docstring), any stencil.
 
     The off-diagonal part of ``A`` (entries ``>= 0``) comes in diagonal storage:
     ``data[k, j] = A[j - offsets[k], j]`` (a finite-volume stencil has a few diagonals),
     so every loop runs over contiguous slices; ``diag`` is the diagonal. ``S`` is
-    updated in place. Returns ``(P_new, min(theta))``.
+    updated in place; ``keep = 1 - LIMIT_MARGIN``. Returns ``(P_new, min(theta))``.
     """
     n = Pb.size
     delta = np.empty(n)
@@ -113,7 +133,7 @@ def _extrapolate(offsets, data, diag, Pa, P1, Pb, tau, eps, S):
             Nk[t] += max(ak[t], 0.0) * gk[t]
     R = np.empty(n)
     for i in range(n):
-        r = (max(Pb[i], 0.0) + eps) / max(-N[i], 1e-300)
+        r = max(Pb[i] + eps, 0.0) * keep / max(-N[i], 1e-300)
         R[i] = min(1.0, r) if N[i] < 0.0 else 1.0
     theta = np.ones(n)
     for k in range(offsets.size):
@@ -144,7 +164,7 @@ def _extrapolate(offsets, data, diag, Pa, P1, Pb, tau, eps, S):
 
 @numba.njit(cache=True, parallel=True)
 def _extrapolate_rows(nx, m1, inv1, du1, m2, inv2, du2, lower, upper, diag, p, tau, eps,
-                      tiny, S):
+                      tiny, S, keep):
     """The three solves and the extrapolation (module docstring) for a tridiagonal
     ``A`` without coupling between rows of ``nx`` cells, one row at a time (rows in
     parallel).
@@ -152,7 +172,8 @@ def _extrapolate_rows(nx, m1, inv1, du1, m2, inv2, du2, lower, upper, diag, p, t
     ``m1, inv1, du1`` / ``m2, inv2, du2``: Thomas factors of ``I - tau A`` / ``I - tau/2
     A``; ``lower[i] = A[i, i-1]``, ``upper[i] = A[i, i+1]`` (``>= 0``, zero at the ends
     of the rows); ``diag`` the diagonal; ``tiny``: solution values below it are 0
-    (:func:`._linsolve.thomas_rows`). ``S`` is updated in place. Returns ``(P_new, min(theta))``.
+    (:func:`._linsolve.thomas_rows`); ``keep = 1 - LIMIT_MARGIN``. ``S`` is updated in
+    place. Returns ``(P_new, min(theta))``.
     """
     n = p.size
     rows = n // nx
@@ -181,7 +202,7 @@ def _extrapolate_rows(nx, m1, inv1, du1, m2, inv2, du2, lower, upper, diag, p, t
             if t < nx - 1:
                 N += max(upper[i], 0.0) * min(delta[t + 1], 0.0)
             N += diag[i] * max(delta[t], 0.0)
-            R[t] = min(1.0, (max(Pb[t], 0.0) + eps) / -N) if N < 0.0 else 1.0
+            R[t] = min(1.0, max(Pb[t] + eps, 0.0) * keep / -N) if N < 0.0 else 1.0
         tmin = 1.0
         for t in range(nx):
             i = s + t
