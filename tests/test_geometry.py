@@ -120,6 +120,12 @@ def test_wall_faces_of_each_shape():
         assert act[k, j] and (not 0 <= j + d < wedge.nx or not act[k, j + d])
     steps = wedge.geometry.horizontal_faces()
     assert steps and all(act[k, j] and not act[k + d, j] for k, j, d in steps)
+    open_x, open_z = wedge.geometry.open_faces()
+    # every face is open or a wall, never both: the staircase walls are the closed ones
+    closed_x = {(k, j, 1) for k, j in np.argwhere(act[:, :-1] & ~open_x)}
+    assert closed_x == {f for f in wedge.geometry.wall_faces() if f[2] == 1 and f[1] < wedge.nx - 1}
+    assert open_z.sum() + len([f for f in steps if f[2] == 1]) == (act[:-1]).sum()
+    assert all(o.all() for o in box.geometry.open_faces())
 
 
 def test_one_statement_of_what_each_shape_supports():
@@ -140,7 +146,7 @@ def test_one_statement_of_what_each_shape_supports():
 # -- structure -----------------------------------------------------------------------------
 
 #: Stage packages that ask ``grid.geometry`` instead of testing which grid they have.
-CONVERTED = ("fields", "density", "tracer")
+CONVERTED = ("fields", "density", "tracer", "analysis")
 
 
 def _flag_tests(path):

@@ -52,9 +52,10 @@ def metric(grid: Grid):
     nz, n = grid.shape
     active = np.asarray(grid.active)
     m, faces = grid.geometry.column_weights
+    open_x, open_z = grid.geometry.open_faces()
     fr = np.zeros((nz, n + 1))
-    fr[:, 1:-1] = faces[1:-1] * (active[:, :-1] & active[:, 1:])
-    fz = m[None, :] * (active[:-1] & active[1:])
+    fr[:, 1:-1] = faces[1:-1] * open_x
+    fz = m[None, :] * open_z
     return m, fr, fz, active
 
 

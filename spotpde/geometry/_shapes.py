@@ -41,7 +41,6 @@ BOX_ONLY = {
     "kinematic comparison": "the comparison fits Gaussian profiles across a Cartesian box; "
                             "domain.coordinates = \"axisymmetric\" and domain.hopper_angle "
                             "are not supported (see notebooks/hoppers.ipynb for hopper flows)",
-    "monte carlo": "the discrete spot model runs in rectangular boxes",
     "cosine series": "cosine coefficients exist for Cartesian boxes only, not for "
                      "axisymmetric or hopper grids",
 }
@@ -184,6 +183,13 @@ class Geometry:
     def restrict(self, a: np.ndarray) -> np.ndarray:
         """``a`` on the active cells, 0 elsewhere (a box returns ``a`` itself)."""
         return a
+
+    def open_faces(self) -> tuple[np.ndarray, np.ndarray]:
+        """Interior faces of a 2D grid that join two active cells: ``x`` faces
+        ``(nz, nx - 1)`` (between columns ``i`` and ``i + 1``) and ``z`` faces
+        ``(nz - 1, nx)`` (between rows ``k`` and ``k + 1``), bool. The others are walls."""
+        act = np.asarray(self.active, dtype=bool)
+        return act[:, :-1] & act[:, 1:], act[:-1] & act[1:]
 
     def clearance(self, x: float, z: float, margin: float = 0.0) -> float:
         """Horizontal distance in d from the point ``(x, z)`` inward to a hopper wall

@@ -94,12 +94,13 @@ class _Geometry:
         self.hopper = geometry.masked
         # open faces: x faces (nz, nx+1), z faces (nz+1, nx); boundary faces follow
         # their one cell
+        open_x, open_z = geometry.open_faces()
         xm = np.zeros((nz, nx + 1), dtype=bool)
-        xm[:, 1:nx] = act[:, :-1] & act[:, 1:]
+        xm[:, 1:nx] = open_x
         xm[:, 0] = act[:, 0]
         xm[:, nx] = act[:, -1]
         zm = np.zeros((nz + 1, nx), dtype=bool)
-        zm[1:nz] = act[:-1] & act[1:]
+        zm[1:nz] = open_z
         zm[0] = act[0]
         zm[nz] = act[-1]
         self.xmask, self.zmask = xm, zm
