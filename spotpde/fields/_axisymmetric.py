@@ -17,8 +17,8 @@ horizontal part of a horizontally isotropic tensor is a scalar times ``I_h``, so
 an axisymmetric tensor with ``T_tt = T_rr`` is
 ``(div T)_r = (1/r) d_r(r T_rr) + d_z T_rz - T_tt/r = d_r T_rr + d_z T_rz`` and
 ``(div T)_z = (1/r) d_r(r T_rz) + d_z T_zz`` (``grid.geometry.divergence``); derivatives
-are second-order differences with the even continuation across the axis (``T_rr``, ``r T_rz``, ``T_zz`` are even in
-``r``), one-sided at the outer wall, the floor, the top and next to inactive (hopper)
+are second-order differences with the even continuation across the axis (``T_rr``,
+``r T_rz``, ``T_zz`` are even in ``r``), one-sided at the outer wall, the floor, the top and next to inactive (hopper)
 cells. Regular axis: ``u_r`` is an ``m = 1`` convolution, which vanishes like ``r``.
 
 Walls: the cylinder wall ``r = a`` (reflecting) and, with a hopper, the faces between

@@ -2,8 +2,9 @@
 
 :func:`spotpde.fields.coefficients.particle_fields` calls :func:`particle_fields` for a
 wedge geometry (``grid.geometry.kind == "wedge"``, a Cartesian grid with a hopper;
-axisymmetric cones go to ``_axisymmetric``, which treats the staircase the same way). The material is the staircase of active cells; the formulas are
-those of the rectangular silo (docs/coefficients.md, docs/walls.md)::
+axisymmetric cones go to ``_axisymmetric``, which treats the staircase the same way).
+The material is the staircase of active cells; the formulas are those of the
+rectangular silo (docs/coefficients.md, docs/walls.md)::
 
     u_p = - w * ([rho_s u_s - 2 lam div(D_s rho_s)] / phi)
           + (1 - 2 lam) sum_faces w(r - s_f) (D_s rho_s).n / phi(s_f) h
