@@ -59,7 +59,7 @@ _ALIASES = {
     "layers": "analysis.layers",
     "mcstats": "montecarlo.mcstats",
 }
-_SUBPACKAGES = ("grid", "parameters", "errors", "density", "fields", "tracer", "pair",
+_SUBPACKAGES = ("grid", "geometry", "parameters", "errors", "density", "fields", "tracer", "pair",
                 "montecarlo", "app", "analysis", "tracks", "observables", "calibration")
 _FUNCTIONS = {"load_case": "app.cases", "run": "app.pipeline", "sweep_case": "app.sweep",
               "fit": "calibration"}

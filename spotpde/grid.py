@@ -30,22 +30,20 @@ from functools import cached_property
 
 import numpy as np
 
+from .geometry import (AXISYMMETRIC_DIFFUSIVITY_KEYS, AXISYMMETRIC_DRIFT_KEYS,
+                       DIFFUSIVITY_KEYS, DRIFT_KEYS, Geometry, derivative, geometry_of)
+
 WALLS = ("reflecting", "open")
 #: Coordinate systems: ``"cartesian"`` (2D ``(x, z)`` or 3D ``(x, y, z)``) or
 #: ``"axisymmetric"`` (``(r, z)``, a cylindrical silo, dims = 2).
 COORDINATES = ("cartesian", "axisymmetric")
 
-#: Particle drift components by dimension, in the result-variable names of docs/interface.md.
-DRIFT_KEYS = {2: ("u_x", "u_z"), 3: ("u_x", "u_y", "u_z")}
-#: Independent components of a symmetric diffusivity tensor by dimension.
-DIFFUSIVITY_KEYS = {
-    2: ("D_xx", "D_xz", "D_zz"),
-    3: ("D_xx", "D_yy", "D_zz", "D_xy", "D_xz", "D_yz"),
-}
-#: The same for axisymmetric grids (cylindrical components; the azimuthal diffusivity
-#: ``D_theta_theta`` equals ``D_rr`` for the spot model's horizontally isotropic spots).
-AXISYMMETRIC_DRIFT_KEYS = ("u_r", "u_z")
-AXISYMMETRIC_DIFFUSIVITY_KEYS = ("D_rr", "D_rz", "D_zz")
+#: Field-name tables (docs/interface.md), owned by :mod:`spotpde.geometry`:
+#: ``DRIFT_KEYS[dims]`` / ``DIFFUSIVITY_KEYS[dims]`` in result order, and the cylindrical
+#: names of axisymmetric grids (``D_theta_theta`` equals ``D_rr`` for the spot model's
+#: horizontally isotropic spots).
+__all__ = ["Grid", "Hopper", "derivative", "WALLS", "COORDINATES", "DRIFT_KEYS",
+           "DIFFUSIVITY_KEYS", "AXISYMMETRIC_DRIFT_KEYS", "AXISYMMETRIC_DIFFUSIVITY_KEYS"]
 
 
 @dataclass(frozen=True)
@@ -90,52 +88,6 @@ class Hopper:
     def half_width_at(self, height):
         """Half-width of the material (radius for a cone) at ``height`` above the floor, in d."""
         return self.half_width + np.asarray(height, dtype=float) * self.slope
-
-
-def _clipped_ramp_integral(alpha, beta, t0, t1):
-    """``integral_{t0}^{t1} clip(alpha + beta t, 0, 1) dt`` exactly (arrays broadcast)."""
-    def F(u):   # antiderivative of clip(u, 0, 1)
-        return np.where(u <= 0.0, 0.0, np.where(u >= 1.0, u - 0.5, 0.5 * u * u))
-    a0 = alpha + beta * t0
-    a1 = alpha + beta * t1
-    with np.errstate(divide="ignore", invalid="ignore"):
-        slanted = (F(a1) - F(a0)) / beta
-    flat = np.clip(a0, 0.0, 1.0) * (t1 - t0)
-    return np.where(np.abs(beta) > 1e-14, slanted, flat)
-
-
-def derivative(f: np.ndarray, spacing: float, axis: int) -> np.ndarray:
-    """Derivative of a cell-centred field along one array axis, in f's units per d.
-
-    Second-order central differences inside and second-order one-sided differences at
-    the two ends (``numpy.gradient``, ``edge_order=2``); an axis of two cells gets the
-    first-order difference, an axis of one cell a zero derivative.
-
-    Args:
-        f: field on the grid (array order ``(z, x)`` / ``(z, y, x)``).
-        spacing: cell size ``h`` in d.
-        axis: the array axis to differentiate along.
-    """
-    n = f.shape[axis]
-    if n >= 3:   # numpy.gradient's formulas, bit for bit, in fewer passes over the array
-        f = np.asarray(f, dtype=float)
-        out = np.empty_like(f)
-
-        def at(index):
-            i = [slice(None)] * f.ndim
-            i[axis] = index
-            return tuple(i)
-
-        inner = out[at(slice(1, -1))]
-        np.subtract(f[at(slice(2, None))], f[at(slice(0, -2))], out=inner)
-        np.divide(inner, 2.0 * spacing, out=inner)
-        a, b, c = -1.5 / spacing, 2.0 / spacing, -0.5 / spacing
-        out[at(0)] = a * f[at(0)] + b * f[at(1)] + c * f[at(2)]
-        out[at(-1)] = -c * f[at(-3)] - b * f[at(-2)] - a * f[at(-1)]
-        return out
-    if n == 2:
-        return np.gradient(f, spacing, axis=axis, edge_order=1)
-    return np.zeros_like(f)
 
 
 @dataclass(frozen=True)
@@ -238,22 +190,26 @@ class Grid:
         """True for ``coordinates = "axisymmetric"`` (array order ``(z, r)``)."""
         return self.coordinates == "axisymmetric"
 
+    @cached_property
+    def geometry(self) -> Geometry:
+        """The silo's shape on this grid (:mod:`spotpde.geometry`): names, measures, the
+        active cells, divergence, wall faces and the features it supports."""
+        return geometry_of(self)
+
     @property
     def axes(self) -> tuple[str, ...]:
         """Dimension names in array order: ``("z", "x")``, ``("z", "y", "x")`` or ``("z", "r")``."""
-        if self.axisymmetric:
-            return ("z", "r")
-        return ("z", "x") if self.dims == 2 else ("z", "y", "x")
+        return self.geometry.axes
 
     @property
     def drift_keys(self) -> tuple[str, ...]:
         """Names of the particle drift components in result order."""
-        return AXISYMMETRIC_DRIFT_KEYS if self.axisymmetric else DRIFT_KEYS[self.dims]
+        return self.geometry.drift_keys
 
     @property
     def diffusivity_keys(self) -> tuple[str, ...]:
         """Names of the independent diffusivity components in result order."""
-        return AXISYMMETRIC_DIFFUSIVITY_KEYS if self.axisymmetric else DIFFUSIVITY_KEYS[self.dims]
+        return self.geometry.diffusivity_keys
 
     @property
     def size(self) -> int:
@@ -266,39 +222,28 @@ class Grid:
         :attr:`cell_volumes`)."""
         return self.spacing**self.dims
 
-    @cached_property
+    @property
     def cell_volumes(self) -> np.ndarray:
         """Volume of every cell, broadcastable to :attr:`shape`, in d**3 (axisymmetric:
         the ring ``2 pi r_i h**2``, exact) or d**dims (Cartesian: ``h**dims``). Cut by
         a hopper, a cell's material volume is ``cell_volumes * material``."""
-        if self.axisymmetric:
-            return (2.0 * np.pi * self.spacing**2 * self.x)[None, :]
-        return np.full((1,) * self.dims, self.cell_volume)
+        return self.geometry.cell_volumes
 
-    @cached_property
+    @property
     def horizontal_measures(self) -> np.ndarray:
         """Horizontal cross-section of every cell column, broadcastable to a horizontal
         slice (axisymmetric: the annulus ``2 pi r_i h`` in d**2; else ``h**(dims-1)``)."""
-        if self.axisymmetric:
-            return 2.0 * np.pi * self.spacing * self.x
-        return np.full((1,) * (self.dims - 1), self.horizontal_cell_measure)
+        return self.geometry.horizontal_measures
 
-    @cached_property
+    @property
     def active(self) -> np.ndarray:
         """Cells of the computation, grid-shaped bool: those whose centre lies in the
         material (all True without a hopper). Every stage solves on this staircase:
         faces between an active and an inactive cell are walls (no flux of spots or
         tracer), and results are NaN on inactive cells. Read-only."""
-        out = np.ones(self.shape, dtype=bool)
-        hop = self.hopper
-        if hop is not None:
-            Z, X = self.mesh()
-            out = np.broadcast_to(np.abs(X - hop.centre) <= hop.half_width_at(Z - self.z_range[0]),
-                                  self.shape).copy()
-        out.setflags(write=False)
-        return out
+        return self.geometry.active
 
-    @cached_property
+    @property
     def material(self) -> np.ndarray:
         """Fraction of each cell's volume inside the granular material, grid-shaped.
 
@@ -307,29 +252,7 @@ class Grid:
         weights), by the midpoint rule with 64 sub-heights per cell (exact except in
         the few cells where the cone meets the outer wall or the axis). Read-only.
         """
-        out = np.ones(self.shape)
-        hop = self.hopper
-        if hop is not None:
-            h = self.spacing
-            zf = self.z_range[0] + np.arange(self.nz + 1) * h
-            xl = self.x_range[0] + np.arange(self.nx) * h   # left faces
-            if not self.axisymmetric:
-                s = hop.slope
-                t0, t1 = (zf[:-1] - self.z_range[0])[:, None], (zf[1:] - self.z_range[0])[:, None]
-                # fraction left of the right wall x = c + hw + s t, right of the left wall
-                right = _clipped_ramp_integral((hop.centre + hop.half_width - xl) / h, s / h, t0, t1)
-                left = _clipped_ramp_integral((xl + h - (hop.centre - hop.half_width)) / h, s / h, t0, t1)
-                out = np.clip((right + left) / h - 1.0, 0.0, 1.0)
-            else:
-                m = 64
-                sub = (np.arange(m) + 0.5) / m
-                zs = (zf[:-1, None] - self.z_range[0]) + sub[None, :] * h   # (nz, m)
-                R = hop.half_width_at(zs)[..., None]                         # (nz, m, 1)
-                r0, r1 = xl, xl + h
-                inside = (np.clip(R, r0, r1) ** 2 - r0**2) / (r1**2 - r0**2)
-                out = inside.mean(axis=1)
-        out.setflags(write=False)
-        return out
+        return self.geometry.material
 
     @property
     def horizontal_cell_measure(self) -> float:
@@ -365,12 +288,7 @@ class Grid:
 
     def coords(self) -> dict[str, np.ndarray]:
         """1D coordinate arrays by axis name (``z`` and ``r`` when axisymmetric)."""
-        if self.axisymmetric:
-            return {"z": self.z, "r": self.x}
-        out = {"z": self.z, "x": self.x}
-        if self.dims == 3:
-            out["y"] = self.y
-        return out
+        return self.geometry.coords()
 
     def mesh(self) -> tuple[np.ndarray, ...]:
         """Broadcastable coordinate arrays in array order: ``(Z, X)`` or ``(Z, Y, X)``."""

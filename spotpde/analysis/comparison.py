@@ -275,11 +275,7 @@ def compare_with_kinematic(case_or_parts, rule: float | None = None, *, z_min: f
         case; ``b`` must be uniform (the kinematic model's single ``b``).
     """
     grid, orifice, spots, kernel, case_rule, rho_s = _parts(case_or_parts)
-    if grid.axisymmetric or grid.hopper is not None:
-        raise ValueError("case_or_parts: the comparison fits Gaussian profiles across a "
-                         "Cartesian box; domain.coordinates = \"axisymmetric\" and "
-                         "domain.hopper_angle are not supported (see notebooks/hoppers.ipynb "
-                         "for hopper flows)")
+    grid.geometry.require("kinematic comparison", "case_or_parts")
     lam = float(case_rule if rule is None else rule)
     if np.ndim(spots.b) != 0 or np.ndim(spots.drift) != 0:
         raise ValueError("case_or_parts: spots.b and spots.drift must be uniform "

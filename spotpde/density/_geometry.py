@@ -36,12 +36,7 @@ import scipy.sparse as sp
 
 from ..grid import Grid
 
-__all__ = ["uses_geometry", "metric", "assemble", "level_fluxes", "pad", "horizontal_measures"]
-
-
-def uses_geometry(grid: Grid) -> bool:
-    """True for grids this module solves: axisymmetric ones or ones with a hopper."""
-    return bool(grid.axisymmetric or grid.hopper is not None)
+__all__ = ["metric", "assemble", "level_fluxes", "pad", "horizontal_measures"]
 
 
 def metric(grid: Grid):
@@ -56,15 +51,11 @@ def metric(grid: Grid):
     """
     nz, n = grid.shape
     active = np.asarray(grid.active)
-    if grid.axisymmetric:
-        m = np.arange(n) + 0.5
-        faces = np.arange(n + 1).astype(float)
-    else:
-        m = np.ones(n)
-        faces = np.ones(n + 1)
+    m, faces = grid.geometry.column_weights
+    open_x, open_z = grid.geometry.open_faces()
     fr = np.zeros((nz, n + 1))
-    fr[:, 1:-1] = faces[1:-1] * (active[:, :-1] & active[:, 1:])
-    fz = m[None, :] * (active[:-1] & active[1:])
+    fr[:, 1:-1] = faces[1:-1] * open_x
+    fz = m[None, :] * open_z
     return m, fr, fz, active
 
 
@@ -194,7 +185,7 @@ def pad(grid: Grid, p: int, coeffs):
         return dataclasses.replace(grid, walls="reflecting"), list(coeffs), lambda a: a
     h = grid.spacing
     x0, x1 = grid.x_range
-    lo = 0 if grid.axisymmetric else p
+    lo, _ = grid.geometry.padding(p)
     g = dataclasses.replace(grid, x_range=(x0 - lo * h, x1 + p * h), walls="reflecting")
     widths = [(0, 0), (lo, p)]
     coeffs = [np.pad(c, widths, mode="edge") if np.ndim(c) > 0 else c for c in coeffs]

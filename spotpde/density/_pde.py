@@ -45,7 +45,7 @@ class SpotDensityPDE(pde.PDEBase):
                  rate: float | Callable[[float], float]):
         super().__init__()
         self.spot_grid = grid
-        if _geometry.uses_geometry(grid):     # axisymmetric / hopper: the metric operator
+        if not grid.geometry.uniform_cells:     # rings / staircase: the metric operator
             A, _ = _geometry.assemble(grid, v, D_perp, D_par)
         else:
             A, _ = assemble(grid.shape, grid.spacing, v, D_perp, D_par)

@@ -252,7 +252,7 @@ def velocity(grid: Grid, orifice: Orifice, b, progress=None) -> dict[str, np.nda
     v = speed(grid, orifice, b, progress)
     h = grid.spacing
     bb = np.asarray(b, dtype=float)
-    if _geometry.uses_geometry(grid):
+    if not grid.geometry.uniform_cells:
         return {grid.drift_keys[0]: np.where(grid.active, bb * _horizontal_gradient(grid, v), 0.0),
                 "u_z": -v}
     out = {"u_x": bb * np.gradient(v, h, axis=-1, edge_order=2)}
@@ -272,7 +272,7 @@ def _horizontal_gradient(grid: Grid, v: np.ndarray) -> np.ndarray:
     face *= fr > 0
     closed = np.zeros(fr.shape, bool)
     closed[:, 1:-1] = fr[:, 1:-1] == 0          # staircase walls inside the box
-    if grid.axisymmetric:
+    if grid.geometry.has_axis:
         closed[:, 0] = True                      # the axis: v even in r
     near = closed[:, :-1] | closed[:, 1:]
     return np.where(near, 0.5 * (face[:, :-1] + face[:, 1:]), grad)
@@ -375,12 +375,12 @@ def streamlines(fields: dict[str, np.ndarray], grid: Grid, starts, max_length: f
     reach_floor.terminal = True
     reach_floor.direction = -1
 
-    hop = grid.hopper
+    clearance = grid.geometry.clearance
 
     def leave(_s, X):
         inside = min((X[:-1] - low).min(), (high - X[:-1]).min(), z1 - X[-1])
-        if hop is not None:      # beyond the staircase: half a cell outside the wall
-            inside = min(inside, hop.half_width_at(X[-1] - z0) + 0.5 * h - abs(X[0] - hop.centre))
+        # beyond a hopper's staircase: half a cell outside its wall (inf without one)
+        inside = min(inside, clearance(X[0], X[-1], 0.5 * h))
         return inside + 1e-9
     leave.terminal = True
     leave.direction = -1

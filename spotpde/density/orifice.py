@@ -66,7 +66,7 @@ def check_orifice(grid: Grid, orifice: Orifice) -> None:
     if not (np.isfinite(orifice.width) and orifice.width >= 0):
         problems.append(f"orifice.width: must be a finite number >= 0, got {orifice.width!r}")
     x0, x1 = grid.x_range
-    if grid.axisymmetric and orifice.x != 0.0:
+    if grid.geometry.has_axis and orifice.x != 0.0:
         problems.append(f"orifice.x: an axisymmetric orifice is centred on the axis (x = 0), "
                         f"got {orifice.x!r}")
     elif not (x0 <= orifice.x <= x1):
@@ -127,7 +127,7 @@ def is_uniform_flow(grid: Grid, orifice: Orifice) -> bool:
     """True when the orifice spans the whole floor (width >= the floor's side: x for a
     slot, the longer of x and y for a 3D disk; the diameter ``2 a`` on an axisymmetric
     grid)."""
-    if grid.axisymmetric:
+    if grid.geometry.has_axis:
         return orifice.width >= 2.0 * grid.x_range[1]
     side = grid.x_range[1] - grid.x_range[0]
     if grid.dims == 3 and orifice.shape != "slot":
@@ -228,10 +228,9 @@ def source_profile(grid: Grid, orifice: Orifice) -> np.ndarray:
         the active floor cells (``grid.active[0]``) and renormalised.
     """
     check_orifice(grid, orifice)
-    if grid.axisymmetric or grid.hopper is not None:
-        return _staircase(grid, _ring_profile(grid, orifice) if grid.axisymmetric
-                          else _cartesian_profile(grid, orifice))
-    return _cartesian_profile(grid, orifice)
+    geometry = grid.geometry
+    profile = (_ring_profile if geometry.curved else _cartesian_profile)(grid, orifice)
+    return profile if geometry.uniform_cells else _staircase(grid, profile)
 
 
 def _cartesian_profile(grid: Grid, orifice: Orifice) -> np.ndarray:
@@ -301,8 +300,7 @@ def _ring_profile(grid: Grid, orifice: Orifice) -> np.ndarray:
 
 def _staircase(grid: Grid, s: np.ndarray) -> np.ndarray:
     """Restrict a floor profile to the hopper's active floor cells and renormalise."""
-    if grid.hopper is not None:
-        s = s * np.asarray(grid.active)[0]
+    s = s * np.asarray(grid.active)[0]
     total = float(np.sum(s * grid.horizontal_measures))
     if not total > 0:
         raise ValueError("orifice.width: the orifice injects nothing into the hopper's "
@@ -345,9 +343,7 @@ def cosine_coefficients(grid: Grid, orifice: Orifice, n_modes: int | None = None
         in d**-(dims-1).
     """
     check_orifice(grid, orifice)
-    if grid.axisymmetric or grid.hopper is not None:
-        raise ValueError("grid: cosine coefficients exist for Cartesian boxes only, "
-                         "not for axisymmetric or hopper grids")
+    grid.geometry.require("cosine series", "grid")
     if grid.dims == 2:
         my, mx = 1, (n_modes or grid.nx)
     elif n_modes is None:

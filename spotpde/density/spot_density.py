@@ -40,82 +40,20 @@ unit time; ``Q0`` spots per unit time. Derivations and checks: docs/spot_density
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Callable
 
 import numpy as np
 
-from . import _elliptic, _geometry, _marching, _metric_march, _spectral, _transient
+from . import _elliptic, _geometry, _marching, _metric_march, _spectral, _transient, traffic
+from ._spots import _pad, check_spots, pad_cells
 from ..errors import NumericalError
 from ..grid import Grid
 from .orifice import check_orifice, source_profile
-from ..parameters import SPOT_MODES, Orifice, Spots
+from ..parameters import Orifice, Spots
 
 __all__ = ["steady", "transient", "solve", "check_spots", "pad_cells"]
 
 Progress = Callable[[float], None] | None
-
-
-# -- validation -------------------------------------------------------------------------
-def check_spots(grid: Grid, spots: Spots) -> None:
-    """Raise :class:`ValueError` naming every invalid ``spots`` key.
-
-    Args:
-        grid: the grid (array coefficients must have its shape).
-        spots: drift, b, b_par (floats or grid-shaped arrays), mode, t_end.
-    """
-    problems = []
-    for key, value, strict in (("drift", spots.drift, True), ("b", spots.b, True),
-                               ("b_par", spots.b_par, False)):
-        arr = np.asarray(value, dtype=float)
-        if arr.ndim > 0 and arr.shape != grid.shape:
-            problems.append(f"spots.{key}: an array must have the grid shape {grid.shape}, got {arr.shape}")
-            continue
-        if not np.all(np.isfinite(arr)):
-            problems.append(f"spots.{key}: must be finite")
-        elif strict and np.any(arr <= 0):
-            problems.append(f"spots.{key}: must be > 0, got {arr.min()!r}")
-        elif not strict and np.any(arr < 0):
-            problems.append(f"spots.{key}: must be >= 0, got {arr.min()!r}")
-    if spots.mode not in SPOT_MODES:
-        problems.append(f"spots.mode: must be one of {', '.join(map(repr, SPOT_MODES))}, got {spots.mode!r}")
-    if problems:
-        raise ValueError("\n".join(problems))
-
-
-# -- open walls: padding -------------------------------------------------------------------
-def pad_cells(grid: Grid, b) -> int:
-    """Cells added on each side for open walls: ``ceil(6 sqrt(b_max H) / h)`` (0 if reflecting)."""
-    if grid.walls == "reflecting":
-        return 0
-    H = grid.z_range[1] - grid.z_range[0]
-    return int(np.ceil(6.0 * np.sqrt(float(np.max(b)) * H) / grid.spacing))
-
-
-def _pad(grid: Grid, spots: Spots):
-    """Padded reflecting grid, padded coefficient arrays (or floats), crop function."""
-    p = pad_cells(grid, spots.b)
-    coeffs = [spots.drift, spots.b, spots.b_par]
-    if p == 0:
-        g = dataclasses.replace(grid, walls="reflecting")
-        return g, coeffs, lambda a: a
-    h = grid.spacing
-
-    def wider(r):
-        return (r[0] - p * h, r[1] + p * h)
-
-    g = Grid(grid.dims, wider(grid.x_range), grid.z_range, h, "reflecting",
-             y_range=wider(grid.y_range) if grid.dims == 3 else None)
-    widths = [(0, 0)] + [(p, p)] * (grid.dims - 1)
-    coeffs = [np.pad(c, widths, mode="edge") if np.ndim(c) > 0 else c for c in coeffs]
-    n = grid.nx
-
-    def crop(a):
-        if grid.dims == 2:
-            return np.ascontiguousarray(a[..., p:p + n])
-        return np.ascontiguousarray(a[..., p:p + grid.ny, p:p + n])
-
-    return g, coeffs, crop
 
 
 def _is_zero(c) -> bool:
@@ -169,7 +107,7 @@ def steady(grid: Grid, orifice: Orifice, spots: Spots, progress: Progress = None
         raise ValueError('spots.rho_max: interacting spots have no steady solver; use '
                         'spots.mode = "transient" (spotpde.traffic)')
     Q0 = _constant_rate(orifice)
-    if _geometry.uses_geometry(grid):
+    if not grid.geometry.uniform_cells:   # rings or a staircase: the metric operator
         return _steady_geometry(grid, orifice, spots, Q0, progress)
     g, (v, b, b_par), crop = _pad(grid, spots)
     if _is_uniform(b) and _is_uniform(b_par) and (_is_zero(b_par) or _is_uniform(v)):
@@ -229,14 +167,13 @@ def transient(grid: Grid, orifice: Orifice, spots: Spots, t_end: float, times=No
     if not (np.isfinite(t_end) and t_end > 0):
         raise ValueError(f"spots.t_end: must be > 0 for a transient run, got {t_end!r}")
     if spots.rho_max is not None:          # interacting spots: the nonlinear solver
-        from . import traffic
         res = traffic.transient(grid, orifice, spots, t_end, times, rho0=rho0, dt=dt,
                                 progress=progress, full_output=full_output)
         return {**res, "inflow": res["injected"]} if full_output else res
     frame_times = np.array([t_end], float) if times is None else np.sort(np.asarray(times, float))
     if frame_times.size and (frame_times[0] < 0 or frame_times[-1] > t_end * (1 + 1e-12)):
         raise ValueError(f"spots.t_end: frame times must lie in [0, {t_end}]")
-    if _geometry.uses_geometry(grid):
+    if not grid.geometry.uniform_cells:   # rings or a staircase: the metric operator
         return _transient_geometry(grid, orifice, spots, t_end, frame_times, times is None,
                                    progress, dt, rho0, full_output, method)
     g, (v, b, b_par), crop = _pad(grid, spots)
@@ -283,7 +220,7 @@ def _steady_geometry(grid, orifice, spots, Q0, progress):
     m, w, _, active = _geometry.metric(g)
     if _is_zero(b_par):
         bb = np.broadcast_to(np.asarray(b, dtype=float), g.shape)
-        scheme = "cn" if g.hopper is None else "bdf2"   # BDF2: L-stable where cells join
+        scheme = "bdf2" if g.geometry.masked else "cn"   # BDF2: L-stable where cells join
         rho = _metric_march.march(flux_floor, bb, g.spacing, m, w, active, progress, scheme) / v
     else:
         A, _ = _geometry.assemble(g, v, b * v, b_par * v)
@@ -305,8 +242,7 @@ def _transient_geometry(grid, orifice, spots, t_end, frame_times, last_only, pro
     g, (v, b, b_par), crop, p = _pad_geometry(grid, spots)
     base = _elliptic.floor_source(g.shape, g.spacing, source_profile(g, orifice))
     if rho0 is not None and g.shape != grid.shape:
-        lo = 0 if grid.axisymmetric else p
-        rho0 = np.pad(np.asarray(rho0, float), [(0, 0), (lo, p)], mode="constant")
+        rho0 = np.pad(np.asarray(rho0, float), [(0, 0), grid.geometry.padding(p)], mode="constant")
     operator = _geometry.assemble(g, v, b * v, b_par * v)
     if method == "py-pde":
         from . import _pde

@@ -37,6 +37,7 @@ from typing import Callable
 import numpy as np
 
 from . import _traffic
+from ._spots import _pad, check_spots, pad_cells
 from ._traffic import FLUXES, LIMITERS, FluxShape, flux_from_name
 from ..grid import Grid
 from .orifice import check_orifice, source_profile
@@ -76,11 +77,7 @@ def transient(grid: Grid, orifice: Orifice, spots: Spots, t_end: float, times=No
         ``rho_s`` at ``t_end`` (``times`` None), frames ``(len(times),) + grid.shape``,
         or the dict.
     """
-    from . import spot_density
-
-    if grid.axisymmetric or grid.hopper is not None:
-        raise ValueError("spots.rho_max: interacting spots are solved in Cartesian boxes only, "
-                         "not on axisymmetric or hopper grids")
+    grid.geometry.require("interacting spots", "spots.rho_max")
     if not (np.isfinite(t_end) and t_end > 0):
         raise ValueError(f"t_end: must be > 0, got {t_end!r}")
     rho_max = np.inf if spots.rho_max is None else float(spots.rho_max)
@@ -90,15 +87,15 @@ def transient(grid: Grid, orifice: Orifice, spots: Spots, t_end: float, times=No
     if spots.diffusion_scaling not in DIFFUSION_SCALINGS:
         raise ValueError(f"spots.diffusion_scaling: must be one of {DIFFUSION_SCALINGS}, "
                          f"got {spots.diffusion_scaling!r}")
-    spot_density.check_spots(grid, spots)
+    check_spots(grid, spots)
     check_orifice(grid, orifice)
     frame_times = np.array([t_end], float) if times is None else np.sort(np.asarray(times, float))
     if frame_times.size and (frame_times[0] < 0 or frame_times[-1] > t_end * (1 + 1e-12)):
         raise ValueError(f"times: must lie in [0, {t_end}]")
-    g, (v, b, b_par), crop = spot_density._pad(grid, spots)
+    g, (v, b, b_par), crop = _pad(grid, spots)
     profile = source_profile(g, orifice)
     if rho0 is not None and g.shape != grid.shape:
-        p = spot_density.pad_cells(grid, spots.b)
+        p = pad_cells(grid, spots.b)
         rho0 = np.pad(np.asarray(rho0, float), [(0, 0)] + [(p, p)] * (grid.dims - 1))
     solver = _traffic.Solver(g.shape, g.spacing, v, b * v, b_par * v, rho_max, flux,
                              spots.diffusion_scaling, limiter,

@@ -17,11 +17,17 @@ comparison with the plain computations: docs/coefficients.md section 6.1.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+import numba
 import scipy.signal
 from numba import njit
 
+from . import _strips
+from ._common import _COMPONENTS, _axis, _box_derivative, _is_zero, _pair
+from ._fft import threads
+from .convolution import convolve, convolve_padded
 from ..grid import Grid
 
 __all__ = ["constant_fields", "fields_2d", "add_requests", "SpotFluxTensor"]
@@ -38,8 +44,6 @@ class SpotFluxTensor(Mapping):
         self.rho_s, self.D_s = rho_s, D_s
 
     def __getitem__(self, key):
-        from .coefficients import _is_zero
-
         d = self.D_s[key]
         return None if _is_zero(d) else self.rho_s * d
 
@@ -59,8 +63,6 @@ def _boundary_planes(grid: Grid, rho_p: np.ndarray, comp: str) -> list[tuple[int
     cells (where ``np.gradient``'s field is zero). Returns
     ``[(padded index, delta - gradient on that plane), ...]``; only those planes are read.
     """
-    from .coefficients import _axis
-
     axis = _axis(grid, comp)
     h = grid.spacing
     n = rho_p.shape[axis] - 2
@@ -81,8 +83,6 @@ def _boundary_planes(grid: Grid, rho_p: np.ndarray, comp: str) -> list[tuple[int
 def _grid_boundary_planes(grid: Grid, rho_s: np.ndarray, comp: str) -> list:
     """:func:`_boundary_planes` of ``np.pad(rho_s, 1)`` without padding the whole grid:
     each plane is one layer of ``rho_s`` padded by one cell along the other axes."""
-    from .coefficients import _axis
-
     axis = _axis(grid, comp)
     h, n = grid.spacing, rho_s.shape[axis]
 
@@ -154,8 +154,6 @@ def constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, lam
     also adds the passage drift ``div(D_p - D_p_mf)`` and with ``strips`` renormalises the
     walls; both need a 2D grid.
     """
-    from .coefficients import _COMPONENTS, _axis, _is_zero, _pair
-
     if grid.dims == 2:
         return fields_2d(grid, rho_s, v_s, D_s, lam, conv, D_source, passage_drift, strips)
     if passage_drift:
@@ -172,8 +170,6 @@ def constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, lam
     need_D = any(not _is_zero(d) for d in D_src.values())
     # the transforms themselves (unscaled: h**dims and the constants are applied once, on
     # the grid's interior); w**2 = c w (uniform kernel) reuses the one transform
-    from .convolution import convolve
-
     # float64 arrays whatever the transforms' precision (single for large 3D grids)
     c1 = np.asarray(convolve(rho_p, conv.stencils[1], mode="linear",
                              precision=conv.precision), dtype=float)
@@ -285,8 +281,6 @@ def _fields_2d_kernel_parallel(c, cD, h, a0, gxx, gxz, gzx, gzz, px, pz, axx, az
     cell, the same values. Threads rather than ``numba.prange``: a parallel numba kernel
     took 4-5 s to compile, paid by the first run after installation (issue 16: under
     15 s in all)."""
-    from concurrent.futures import ThreadPoolExecutor
-
     nz = ux.shape[0]
     args = (c, cD, h, a0, gxx, gxz, gzx, gzz, px, pz, axx, azz, ux, uz, dxx, dzz, same)
     bounds = [(t * nz // chunks, (t + 1) * nz // chunks) for t in range(chunks)]
@@ -368,9 +362,6 @@ def fields_2d(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, lam: floa
     The transform is read in place (``convolution.convolve_padded``; ``r`` applied to the
     strip columns of its input buffer): no padded copy of ``rho_s``, no copy of the result.
     """
-    from .coefficients import _is_zero
-    from .convolution import convolve, convolve_padded
-
     h = grid.spacing
     hd = h * h
     D_src = D_s if D_source is None else D_source
@@ -427,10 +418,6 @@ def fields_2d(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, lam: floa
 def _kernel_threads() -> int:
     """Threads for the one-pass kernel: the transforms' (``_fft.threads``: the cores not
     busy with other tasks), at most numba's."""
-    import numba
-
-    from ._fft import threads
-
     return max(1, min(threads(), numba.get_num_threads()))
 
 
@@ -444,8 +431,6 @@ def _boundary_sources(grid: Grid, rho_s: np.ndarray, d: Mapping, scale: float,
     ``B_z`` is ``c_z`` of ``psi``; ``B_x = delta_x psi~ - (r grad_x rho_s)~``, computed on the
     strips widened by one cell (merged where they meet), is ``c_x`` where ``r = 1``.
     """
-    from ._walls import _box_derivative
-
     nz, nx = grid.shape
     h = grid.spacing
     r_row = np.ones(nx)
@@ -501,9 +486,6 @@ def add_requests(grid: Grid, fields: dict, requests, conv, D_s: Mapping, T: Mapp
     ``T^ab c2 h^dims``, and with ``passage_drift`` (2D) their derivatives times
     ``(T - D_s)^aa c2 h^2`` to ``u_a`` (the passage drift ``div(D_p - D_p_mf)``).
     """
-    from . import _strips
-    from .coefficients import _is_zero
-
     if not requests:
         return
     hd = grid.spacing**grid.dims

@@ -30,6 +30,8 @@ from pathlib import Path
 import numpy as np
 import scipy.fft
 
+from .._cache import user_cache_dir
+
 try:  # pragma: no cover - exercised when pyfftw is installed
     import pyfftw
 
@@ -117,8 +119,6 @@ def _other_runnable() -> int:
 
 def cache_dir() -> Path:
     """The spotpde user cache directory (not created here): see :mod:`spotpde._cache`."""
-    from .._cache import user_cache_dir
-
     return user_cache_dir()
 
 

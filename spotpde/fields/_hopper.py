@@ -1,16 +1,17 @@
 """Particle fields in a 2D wedge hopper: the staircase ``grid.active`` as the silo (private).
 
 :func:`spotpde.fields.coefficients.particle_fields` calls :func:`particle_fields` for a
-Cartesian grid with a hopper (axisymmetric cones go to ``_axisymmetric``, which treats the
-staircase the same way). The material is the staircase of active cells; the formulas are
-those of the rectangular silo (docs/coefficients.md, docs/walls.md)::
+wedge geometry (``grid.geometry.kind == "wedge"``, a Cartesian grid with a hopper;
+axisymmetric cones go to ``_axisymmetric``, which treats the staircase the same way).
+The material is the staircase of active cells; the formulas are those of the
+rectangular silo (docs/coefficients.md, docs/walls.md)::
 
     u_p = - w * ([rho_s u_s - 2 lam div(D_s rho_s)] / phi)
           + (1 - 2 lam) sum_faces w(r - s_f) (D_s rho_s).n / phi(s_f) h
     D_p =   w^2 * (rho_s T / phi^2)
 
 with every source zero on inactive cells, ``div`` by second-order differences that never
-cross a wall face (``_axisymmetric.masked_derivative``: one-sided next to an inactive
+cross a wall face (``grid.geometry.divergence``: one-sided next to an inactive
 cell), ``phi`` the coverage of the material indicator ``chi = grid.active``
 (``_walls.coverage`` with that mask: free volume is conserved at the inclined walls as at
 flat ones) and the wall layer summed over the vertical wall faces of the staircase and
@@ -26,30 +27,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import _walls
-from ._axisymmetric import _zero, masked_derivative, passage_excess
+from . import _passage, _walls, convolution
+from ._common import _SUBSAMPLE, _check_coefficient, _check_inputs, _Convolutions, spot_diffusivity
+from ._common import _is_zero as _zero
+from ._staircase import face_sources, passage_excess
 from .._roundoff import clip_roundoff
 from ..grid import DIFFUSIVITY_KEYS, DRIFT_KEYS, Grid
-
-
-def divergence(grid: Grid, T, active) -> dict:
-    """Row divergence ``(div T)^a = d_b T^ab`` (2D, keys ``D_xx, D_xz, D_zz``) that never
-    differences across a wall face. Returns ``{"x": ..., "z": ...}``."""
-    h = grid.spacing
-    out = {"x": np.zeros(grid.shape), "z": np.zeros(grid.shape)}
-    for key, a, axis in (("D_xx", "x", 1), ("D_xz", "x", 0), ("D_xz", "z", 1), ("D_zz", "z", 0)):
-        t = T.get(key)
-        if _zero(t) or np.ndim(t) == 0:
-            continue
-        out[a] += masked_derivative(t, h, axis, active)
-    return out
-
-
-def wall_faces(grid: Grid) -> list[tuple[int, int, int]]:
-    """Vertical wall faces ``(k, j, direction)`` of the staircase and the box walls."""
-    from ._axisymmetric import wall_faces as faces
-
-    return faces(grid, both_box_walls=True)
 
 
 def _face_stencil(grid: Grid, kernel, axis: int = 1) -> np.ndarray:
@@ -58,8 +41,6 @@ def _face_stencil(grid: Grid, kernel, axis: int = 1) -> np.ndarray:
     ``S[dk, di] = h <w((di + 1/2) h, dk h - t)>_t`` on the cell ``di`` columns right of
     the face's right-hand cell; horizontal faces (``axis = 0``):
     ``S[dk, di] = h <w(di h - t, (dk + 1/2) h)>_t``."""
-    from .coefficients import _SUBSAMPLE
-
     h = grid.spacing
     rh, rz = kernel.reach
     M = int(np.ceil(rh / h)) + 1
@@ -82,14 +63,12 @@ def add_wall_layer(grid: Grid, kernel, lam: float, G, phi, fields: dict) -> None
     """``u += (1 - 2 lam) sum_faces w (D_s rho_s).n / phi h`` over the wall faces: the
     vertical ones (``G_xx``, ``G_xz``) and the staircase's horizontal steps (``G_xz``,
     ``G_zz``)."""
-    from . import convolution
-    from ._axisymmetric import face_sources, horizontal_faces
-
     if lam == 0.5:
         return
     nz, nx = grid.shape
     c = 1.0 - 2.0 * lam
-    for axis, faces in ((1, wall_faces(grid)), (0, horizontal_faces(grid))):
+    geometry = grid.geometry
+    for axis, faces in ((1, geometry.wall_faces()), (0, geometry.horizontal_faces())):
         if not faces:
             continue
         pushes = (("D_xx", "u_x"), ("D_xz", "u_z")) if axis == 1 else (("D_xz", "u_x"), ("D_zz", "u_z"))
@@ -110,23 +89,21 @@ def add_wall_layer(grid: Grid, kernel, lam: float, G, phi, fields: dict) -> None
 
 def particle_fields(grid: Grid, rho_s, spots, kernel, lam, tensor, diffusivity, walls, mask):
     """The wedge-hopper fields (module docstring); arguments as ``particle_fields``."""
-    from .coefficients import _Convolutions, spot_diffusivity
-
+    rho_s = _check_inputs(grid, rho_s, kernel)
+    _check_coefficient(grid, "spots.drift", spots.drift)
     act = grid.active
     rho = np.where(act, rho_s, 0.0)
     D_s = spot_diffusivity(grid, spots, tensor)
     v_s = spots.drift
     T = D_s
     if diffusivity == "passage":
-        from . import _passage
-
         T = _passage.source_tensor(grid, spots, D_s, kernel, lam)
     renorm = _walls.check_walls(walls) == "renormalise"
     phi = _walls.coverage(grid, kernel, act.astype(float) if mask is None else mask) if renorm else None
     # sources vanish on inactive cells, where phi may be ~0
     inv = 1.0 if phi is None else np.where(act, 1.0 / np.where(act, phi, 1.0), 0.0)
     G = {k: None if _zero(d) else rho * d for k, d in D_s.items()}
-    div = divergence(grid, G, act)
+    div = grid.geometry.divergence(G)
     conv = _Convolutions(grid, kernel)
     keys = {}
     keys["u_z"] = conv.request("u_z", -rho * v_s * inv + 2.0 * lam * div["z"] * inv, 1)
@@ -147,7 +124,7 @@ def particle_fields(grid: Grid, rho_s, spots, kernel, lam, tensor, diffusivity, 
     if diffusivity == "passage":
         diff = passage_excess(T, D_s, fields, lambda key: res[keys["diff_" + key]],
                               ("D_xx", "D_zz"))
-        dv = divergence(grid, diff, act)
+        dv = grid.geometry.divergence(diff)
         fields["u_x"] = fields["u_x"] + dv["x"]
         fields["u_z"] = fields["u_z"] + dv["z"]
     add_wall_layer(grid, kernel, lam, G, phi, fields)

@@ -17,25 +17,14 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from . import _passage
+from ._common import (_COMPONENTS, _SUBSAMPLE, _as_point, _check_inputs, _check_rule,
+                      _is_zero, spot_diffusivity)
 from ..grid import DIFFUSIVITY_KEYS, Grid
 from ..parameters import Spots
 
-# The helpers shared with particle_fields live in coefficients, which imports this
-# module: they are imported inside the functions (as in _walls and _passage).
-
 #: Largest number of quadrature points of one cross integral (fewer sub-samples beyond).
 _MAX_POINTS = 4_000_000
-
-
-def _as_point(grid: Grid, r, name: str) -> np.ndarray:
-    """``r`` as a point of ``grid.dims`` coordinates (in d); ValueError naming ``name``."""
-    from .coefficients import _COMPONENTS
-
-    p = np.asarray(r, dtype=float).reshape(-1)
-    if p.shape != (grid.dims,):
-        raise ValueError(f"{name}: a point needs {grid.dims} coordinates "
-                         f"({', '.join(_COMPONENTS[grid.dims])}), got {r!r}")
-    return p
 
 
 def _cross_integrals(grid: Grid, rho_s: np.ndarray, D_s: Mapping, kernel, r1: np.ndarray,
@@ -46,8 +35,6 @@ def _cross_integrals(grid: Grid, rho_s: np.ndarray, D_s: Mapping, kernel, r1: np
     fewer when the box would exceed ``_MAX_POINTS`` points), on the cells within the
     kernel's reach of both points, slab by slab in z.
     """
-    from .coefficients import _COMPONENTS, _SUBSAMPLE, _is_zero
-
     comps = _COMPONENTS[grid.dims]
     h = grid.spacing
     reach_h, reach_v = kernel.reach
@@ -96,11 +83,7 @@ def _cross_integrals(grid: Grid, rho_s: np.ndarray, D_s: Mapping, kernel, r1: np
 def _two_point_integrals(grid: Grid, rho_s, spots: Spots, kernel, r1, r2,
                          spot_diffusivity_tensor: Mapping | None):
     """Checked inputs, then ``(X(r1, r2), X(r1, r1), X(r2, r2))`` of :func:`_cross_integrals`."""
-    from .coefficients import _check_inputs, spot_diffusivity
-
-    if grid.axisymmetric or grid.hopper is not None:
-        raise ValueError("grid: two-point statistics are implemented for rectangular "
-                         "Cartesian silos only (no axisymmetric grids, no hoppers)")
+    grid.geometry.require("two-point statistics", "grid")
     rho_s = _check_inputs(grid, rho_s, kernel)
     p1, p2 = _as_point(grid, r1, "r1"), _as_point(grid, r2, "r2")
     D_s = spot_diffusivity(grid, spots, spot_diffusivity_tensor)
@@ -171,8 +154,6 @@ def pair_diffusivity(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, r1, r2
     Returns:
         ``{"D_xx": ..., "D_xz": ..., ...}`` in d**2 per unit time.
     """
-    from .coefficients import _check_rule
-
     if diffusivity not in ("passage", "mean-field"):
         raise ValueError(f"diffusivity: must be 'passage' or 'mean-field', got {diffusivity!r}")
     lam = _check_rule(rule)
@@ -180,9 +161,6 @@ def pair_diffusivity(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, r1, r2
                                      spot_diffusivity_tensor)
     out = {k: X1[k] + X2[k] - 2.0 * X[k] for k in DIFFUSIVITY_KEYS[grid.dims]}
     if diffusivity == "passage":
-        from . import _passage
-        from .coefficients import spot_diffusivity
-
         D_s = spot_diffusivity(grid, spots, spot_diffusivity_tensor)
         T = _passage.source_tensor(grid, spots, D_s, kernel, lam)
         p1, p2 = _as_point(grid, r1, "r1"), _as_point(grid, r2, "r2")

@@ -41,6 +41,10 @@ import math
 import numpy as np
 import scipy.fft
 import scipy.ndimage
+from scipy.interpolate import BarycentricInterpolator
+
+from ._common import (_COMPONENTS, _as_point, _Convolutions, _is_zero, divergence,
+                      spot_diffusivity)
 
 __all__ = ["length_tensor", "effective_spot_length", "source_tensor", "keep_flux_velocity",
            "add_pair_correction", "proportional", "keys"]
@@ -377,8 +381,6 @@ def _cheb(lo, hi, n):
 
 def _interp(nodes, values, x):
     """Polynomial (barycentric) interpolation on Chebyshev nodes along the first axis."""
-    from scipy.interpolate import BarycentricInterpolator
-
     return BarycentricInterpolator(nodes, values, axis=0)(x)
 
 
@@ -489,8 +491,6 @@ def keep_flux_velocity(grid, rho_s, D_s, D_source, kernel, fields: dict, phi=Non
     (``phi``, the kernel coverage of ``_walls``) every source is divided by ``phi^2``, as in
     ``D_p`` itself. Modifies ``fields`` in place.
     """
-    from .coefficients import _COMPONENTS, _Convolutions, _is_zero, divergence
-
     diff = dict(fields.pop("_diff", {}))
     todo = {}
     for key, t in D_source.items():
@@ -528,8 +528,6 @@ def add_pair_correction(grid, rho_s, spots, kernel, r1, r2, spot_diffusivity_ten
     cell of the midpoint (locally uniform flow; exact in uniform flow; zero once the pair
     shares no spot). ``out``: ``{"D_xx": ..., ...}``, modified in place.
     """
-    from .coefficients import _COMPONENTS, _as_point, spot_diffusivity
-
     p1, p2 = _as_point(grid, r1, "r1"), _as_point(grid, r2, "r2")
     mid = 0.5 * (p1 + p2)
     comps = _COMPONENTS[grid.dims]

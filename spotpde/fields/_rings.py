@@ -43,13 +43,18 @@ after the transforms, ``mb`` the kernel's reach in cells.
 
 from __future__ import annotations
 
+import hashlib
 import math
+import os
+import tempfile
 from collections import OrderedDict
 
 import numpy as np
 import scipy.fft
 from numba import njit
 from scipy import special
+
+from .._cache import user_cache_dir
 
 __all__ = ["ring_weights", "ring_convolve", "halfwidths"]
 
@@ -310,12 +315,6 @@ USE_DISK = True
 def _disk(key, compute):
     """``compute()`` stored in ``<user cache>/rings/<hash>.npy`` (read back on later runs;
     any failure to read or write the file only costs the computation)."""
-    import hashlib
-    import os
-    import tempfile
-
-    from .._cache import user_cache_dir
-
     if not USE_DISK:
         return compute()
     name = hashlib.sha1(repr((_DISK_VERSION,) + key).encode()).hexdigest() + ".npy"

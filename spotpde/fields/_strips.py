@@ -19,6 +19,8 @@ from collections import OrderedDict
 import numpy as np
 import scipy.fft
 
+from ..geometry import derivative
+
 __all__ = ["box_convolutions", "add", "add_derivative", "clear_spectra"]
 
 _SPECTRA: OrderedDict = OrderedDict()
@@ -115,8 +117,6 @@ def add_derivative(target: np.ndarray, parts, h: float, axis: int, factor: float
     read only zeros, as the whole grid's do; so this is the whole-grid derivative, term by
     term (the derivative is linear).
     """
-    from ..grid import derivative
-
     n = target.shape[axis]
     for dst, values in parts:
         sl = dst[axis]

@@ -18,6 +18,7 @@ import numpy as np
 import scipy.signal
 
 from . import _walls
+from ._common import _COMPONENTS, _SUBSAMPLE, _axis, _is_zero, _pair
 from ..grid import Grid
 
 # _COMPONENTS, _SUBSAMPLE, _axis, _is_zero, _pair live in coefficients, which imports
@@ -46,8 +47,6 @@ def _wall_layer(grid: Grid, kernel, comp: str, g_face: Mapping[int, np.ndarray])
         ``w`` averaged over each cell (sub-sampled); along the normal, ``w`` is evaluated
         at the particle's cell centre.
     """
-    from .coefficients import _COMPONENTS, _SUBSAMPLE, _axis, _is_zero
-
     h = grid.spacing
     axis = _axis(grid, comp)
     reach_h, reach_v = kernel.reach
@@ -104,8 +103,6 @@ def add_wall_layer(grid: Grid, kernel, lam: float, G: Mapping, phi: np.ndarray |
             wall value of ``(D_s rho_s) n`` is divided by ``phi`` on the wall) or ``None``.
         fields: the particle fields, ``u_x``, [``u_y``,] ``u_z`` updated.
     """
-    from .coefficients import _COMPONENTS, _axis, _pair
-
     if grid.walls != "reflecting" or lam == 0.5:
         return
     comps = _COMPONENTS[grid.dims]

@@ -42,6 +42,9 @@ import numpy as np
 import scipy.integrate
 import scipy.signal
 
+from ._common import (_COMPONENTS, _assemble, _box_derivative, _is_zero, _pair,
+                      divergence)
+from ._constant import SpotFluxTensor, add_requests, constant_fields
 from ..grid import Grid
 
 __all__ = ["WALL_TREATMENTS", "check_walls", "renormalises", "coverage", "face_value",
@@ -159,7 +162,7 @@ def renormalised_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: f
     ``u_p = -w * (rho_s u_s / phi) + 2 lam w * (div(D_s rho_s) / phi)`` and
     ``D_p = w^2 * (rho_s D_s / phi^2)``; ``div`` by second-order grid differences of the
     un-renormalised ``D_s rho_s`` (as in the truncated fields). ``conv`` is the
-    ``coefficients._Convolutions`` collector (one transform per source and stencil).
+    ``_common._Convolutions`` collector (one transform per source and stencil).
     With ``D_source`` (the passage tensor ``T`` of ``_passage.source_tensor``) the
     diffusivity sources are ``rho_s T / phi^2`` instead (``D_p = w^2 * (rho_s T / phi^2)``);
     the drift's ``div(D_s rho_s)`` keeps the spot diffusivity.
@@ -167,8 +170,6 @@ def renormalised_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: f
     the face values of both, each extrapolated to third order: ``phi`` is smooth at a
     wall, ``1/phi`` much less so).
     """
-    from .coefficients import _COMPONENTS, _assemble, _is_zero, divergence
-
     comps = _COMPONENTS[grid.dims]
     inv = 1.0 / phi
     G, D_terms = {}, {}
@@ -275,22 +276,6 @@ def _wall_boxes(grid: Grid, half_widths) -> list[tuple[slice, ...]]:
     return boxes
 
 
-def _box_derivative(f: np.ndarray, h: float, box, axis: int) -> np.ndarray:
-    """``grid.derivative(f, h, axis)[box]`` from the box widened by one cell along ``axis``."""
-    from ..grid import derivative
-
-    sl = box[axis]
-    lo, hi = max(0, sl.start - 1), min(f.shape[axis], sl.stop + 1)
-    wide = list(box)
-    wide[axis] = slice(lo, hi)
-    crop = [slice(None)] * f.ndim
-    crop[axis] = slice(sl.start - lo, sl.stop - lo)
-    if hi - lo < 3 <= f.shape[axis]:             # too thin for the same formulas: whole axis
-        wide[axis] = slice(0, f.shape[axis])
-        crop[axis] = sl
-    return derivative(f[tuple(wide)], h, axis)[tuple(crop)]
-
-
 def renormalised_constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping,
                                  lam: float, conv, phi: np.ndarray,
                                  D_source: Mapping | None = None,
@@ -317,9 +302,6 @@ def renormalised_constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s:
     ``passage_drift`` it also adds the passage drift ``div(D_p - D_p_mf)``
     (``_passage.keep_flux_velocity``). Also returns ``"_G"`` and ``"_phi"``.
     """
-    from ._constant import SpotFluxTensor, add_requests, constant_fields
-    from .coefficients import _COMPONENTS, _is_zero, _pair
-
     boxes = _wall_boxes(grid, [(k - 1) // 2 for k in conv.stencils[1].shape])
     if grid.dims == 2:      # 1/phi on the strip columns multiplies the one transform's input
         strips = [(box[1], 1.0 / phi[0, box[1]]) for box in boxes]

@@ -39,20 +39,20 @@ re-exported here.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 
 import numpy as np
-import scipy.signal
 
-from . import _walls
-# the two-point statistics and the wall layer live beside this module; their private
-# helpers stay importable from here (_passage uses _as_point)
-from ._pairs import (_as_point, _cross_integrals, _two_point_integrals, pair_diffusivity,
-                     velocity_correlation)
-from ._wall_layer import _face_value, _wall_layer, add_wall_layer
+from . import _axisymmetric, _hopper, _passage, _strips, _walls, convolution
+# the shared helpers live in _common (the bottom of the package); the two-point
+# statistics and the wall layer beside this module
+from ._common import (_COMPONENTS, ROUNDOFF, _assemble, _check_coefficient, _check_inputs,
+                      _check_rule, _Convolutions, _is_zero, divergence, spot_diffusivity)
 from ._constant import SpotFluxTensor, constant_fields
+from ._pairs import pair_diffusivity, velocity_correlation
+from ._wall_layer import add_wall_layer
 from .._roundoff import clip_roundoff
-from ..grid import DIFFUSIVITY_KEYS, DRIFT_KEYS, Grid, derivative
+from ..grid import DIFFUSIVITY_KEYS, DRIFT_KEYS, Grid
 from ..parameters import Spots
 
 __all__ = [
@@ -67,230 +67,6 @@ __all__ = [
     "DRIFT_KEYS",
     "DIFFUSIVITY_KEYS",
 ]
-
-_COMPONENTS = {2: ("x", "z"), 3: ("x", "y", "z")}
-#: The largest negatives of ``D_p``'s diagonal taken for round-off, relative to its
-#: maximum, by transform precision (single: 40 times the measured error, 2.5e-7).
-ROUNDOFF = {"double": 1e-9, "single": 1e-5}
-#: Sub-samples per cell and axis for kernel quadratures at arbitrary points.
-_SUBSAMPLE = 6
-
-
-# -- small helpers -----------------------------------------------------------------------
-
-def _axis(grid: Grid, comp: str) -> int:
-    """Array axis of a coordinate: z is axis 0, x the last, y (3D) axis 1."""
-    return {"z": 0, "y": 1, "x": grid.dims - 1}[comp]
-
-
-def _pair(a: str, b: str) -> str:
-    """Canonical tensor key of components ``a, b`` (``D_xz``, never ``D_zx``)."""
-    order = "xyz"
-    a, b = sorted((a, b), key=order.index)
-    return f"D_{a}{b}"
-
-
-def _is_zero(value) -> bool:
-    return value is None or (np.ndim(value) == 0 and float(value) == 0.0)
-
-
-def _check_coefficient(grid: Grid, name: str, value) -> None:
-    if np.ndim(value) == 0:
-        if not np.isfinite(float(value)):
-            raise ValueError(f"{name}: must be finite, got {value!r}")
-        return
-    if np.shape(value) != grid.shape:
-        raise ValueError(f"{name}: array shape {np.shape(value)} does not match the grid "
-                         f"shape {grid.shape} (array order {grid.axes})")
-    if not np.all(np.isfinite(value)):
-        raise ValueError(f"{name}: contains NaN or infinite values")
-
-
-def _check_rule(rule) -> float:
-    try:
-        lam = float(rule)
-    except (TypeError, ValueError):
-        raise ValueError(f"rule: must be a number (0.5 midpoint, 1 end point), got {rule!r}")
-    if not np.isfinite(lam) or not 0.0 <= lam <= 1.0:
-        raise ValueError(f"rule: must lie in [0, 1] (0.5 midpoint, 1 end point), got {rule!r}")
-    return lam
-
-
-def _check_inputs(grid: Grid, rho_s: np.ndarray, kernel) -> np.ndarray:
-    rho_s = np.asarray(rho_s, dtype=float)
-    if rho_s.shape != grid.shape:
-        raise ValueError(f"rho_s: array shape {rho_s.shape} does not match the grid shape "
-                         f"{grid.shape} (array order {grid.axes})")
-    # a finite sum means every value is finite (one pass); an overflowing sum of finite
-    # values only sends the check to the element test
-    if not (np.isfinite(np.sum(rho_s)) or np.all(np.isfinite(rho_s))):
-        raise ValueError("rho_s: contains NaN or infinite values")
-    if getattr(kernel, "dims", grid.dims) != grid.dims:
-        raise ValueError(f"kernel: built for dims={kernel.dims} but the grid has dims={grid.dims}")
-    return rho_s
-
-
-def spot_diffusivity(grid: Grid, spots: Spots, tensor: Mapping | None = None) -> dict:
-    """The spot diffusivity tensor ``D_s`` by component, in d**2 per unit time.
-
-    Args:
-        grid: the grid (its ``dims`` decides the components).
-        spots: spot parameters; ``D_s = diag(D_perp, [D_perp,] D_par)`` with
-            ``D_perp = b v_s`` and ``D_par = b_par v_s`` (docs/conventions.md; eq. Ds of the paper).
-        tensor: optional full tensor overriding ``spots``: a mapping from keys
-            ``D_xx``, ``D_xz``, ... (any subset; missing components are zero) to floats or
-            grid arrays.
-
-    Returns:
-        ``{"D_xx": ..., "D_xz": ..., ...}``: floats or grid arrays (``DIFFUSIVITY_KEYS``;
-        axisymmetric grids: ``D_rr``, ``D_rz``, ``D_zz``).
-    """
-    if grid.axisymmetric:   # cylindrical components D_rr (= D_theta_theta), D_rz, D_zz
-        from ._axisymmetric import spot_tensor
-        return spot_tensor(grid, spots, tensor)
-    keys = DIFFUSIVITY_KEYS[grid.dims]
-    if tensor is not None:
-        unknown = sorted(set(tensor) - set(keys))
-        if unknown:
-            raise ValueError(f"spot diffusivity: unknown components {unknown}; valid: {list(keys)}")
-        out = {k: tensor.get(k, 0.0) for k in keys}
-    else:
-        out = {k: 0.0 for k in keys}
-        out["D_xx"] = spots.D_perp
-        if grid.dims == 3:
-            out["D_yy"] = spots.D_perp
-        out["D_zz"] = spots.D_par
-    for k, v in out.items():
-        _check_coefficient(grid, f"spot diffusivity {k}", v)
-    return out
-
-
-def _gradient(grid: Grid, f: np.ndarray, comp: str) -> np.ndarray:
-    """Second-order derivative along ``comp``: central inside, one-sided at the ends."""
-    if f.shape[_axis(grid, comp)] < 3:
-        raise ValueError(f"grid: need at least 3 cells along {comp} to differentiate")
-    return derivative(f, grid.spacing, _axis(grid, comp))
-
-
-def divergence(grid: Grid, tensor: Mapping[str, np.ndarray]) -> dict:
-    """Row divergence ``(div T)^a = sum_b d_b T^ab`` of a symmetric tensor field.
-
-    Derivatives are second order on the grid (central inside, one-sided at the
-    boundaries). Missing or scalar-zero components are skipped.
-
-    Args:
-        grid: the grid.
-        tensor: ``{"D_xx": array, ...}`` (keys of ``DIFFUSIVITY_KEYS``).
-
-    Returns:
-        ``{"x": array, ..., "z": array}`` in the tensor's units per d.
-    """
-    comps = _COMPONENTS[grid.dims]
-    out = {}
-    for a in comps:
-        acc = None
-        for b in comps:
-            t = tensor.get(_pair(a, b))
-            if _is_zero(t) or np.ndim(t) == 0:
-                continue
-            g = _gradient(grid, np.asarray(t, dtype=float), b)
-            acc = g if acc is None else acc + g
-        out[a] = np.zeros(grid.shape) if acc is None else acc
-    return out
-
-
-# -- convolution ---------------------------------------------------------------------------
-
-def _convolve(fields: Sequence[np.ndarray], stencil: np.ndarray,
-              precision: str = "double") -> list[np.ndarray]:
-    """Linear (zero-padded) discrete convolution of several fields with one stencil
-    (float64 results whatever the transforms' ``precision``)."""
-    if not fields:
-        return []
-    from . import convolution
-
-    out = convolution.convolve(list(fields), stencil, mode="linear", precision=precision)
-    if isinstance(out, np.ndarray) and out.ndim == np.ndim(fields[0]) and len(fields) == 1:
-        out = [out]
-    return [np.asarray(a, dtype=float) for a in out]
-
-
-def _proportional(s1: np.ndarray, s2: np.ndarray) -> float | None:
-    """``c`` if ``s2 == c * s1`` to round-off (e.g. the uniform kernel: w**2 = height w)."""
-    if s1.shape != s2.shape:
-        return None
-    total = s1.sum()
-    if total == 0.0:
-        return None
-    c = s2.sum() / total
-    if np.allclose(s2, c * s1, rtol=1e-12, atol=1e-14 * np.abs(s2).max()):
-        return float(c)
-    return None
-
-
-class _Convolutions:
-    """Collects ``w**power * source`` requests and computes them in one call per stencil.
-
-    Sources are named; a source requested with both powers is transformed once when the
-    ``w**2`` stencil is a multiple of the ``w`` stencil (the uniform kernel, where
-    ``w**2 = height * w``), so every distinct (source, stencil) pair costs one transform.
-    Results are the continuum integrals, i.e. already multiplied by ``h**dims``.
-    """
-
-    def __init__(self, grid: Grid, kernel):
-        from .convolution import precision_for
-
-        self.h = grid.spacing
-        self.dims = grid.dims
-        #: of the whole-grid transforms: single for large 3D grids (convolution module)
-        self.precision = precision_for(grid.shape)
-        self.stencils = {p: np.asarray(kernel.sample(self.h, power=p), dtype=float) for p in (1, 2)}
-        c = _proportional(self.stencils[1], self.stencils[2])
-        # power -> (stencil used, factor)
-        self.use = {1: (1, 1.0), 2: (1, c) if c is not None else (2, 1.0)}
-        self.sources: dict[str, np.ndarray] = {}
-        self.requests: set = set()
-
-    def request(self, name: str, source: np.ndarray, power: int) -> tuple:
-        """Register ``w**power * source``; returns the key to look the result up with."""
-        self.sources[name] = source
-        self.requests.add((name, power))
-        return (name, power)
-
-    def run(self) -> dict[tuple, np.ndarray]:
-        hd = self.h**self.dims
-        out = {}
-        for p in (1, 2):
-            names = sorted({n for n, q in self.requests if self.use[q][0] == p})
-            if not names:
-                continue
-            results = _convolve([self.sources[n] for n in names], self.stencils[p],
-                                self.precision)
-            done = dict(zip(names, results))
-            for n, q in self.requests:
-                if self.use[q][0] == p:
-                    out[(n, q)] = done[n] * (hd * self.use[q][1])
-        return out
-
-
-def _assemble(grid: Grid, comps, u_terms: Mapping, D_terms: Mapping, D_s: Mapping,
-              res: Mapping) -> dict[str, np.ndarray]:
-    """Sum the convolved sources into the fields: ``u_a = sum factor * res[key]`` over
-    ``u_terms[a]``, ``D^ab = factor * res[key]`` of ``D_terms`` (zero where absent)."""
-    fields = {}
-    for a in comps:
-        acc = np.zeros(grid.shape)
-        for factor, key in u_terms[a]:
-            acc += factor * res[key]
-        fields[f"u_{a}"] = acc
-    for key in D_s:
-        if key in D_terms:
-            factor, rkey = D_terms[key]
-            fields[key] = factor * res[rkey]
-        else:
-            fields[key] = np.zeros(grid.shape)
-    return fields
-
 
 def _general_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: float,
                     conv: _Convolutions, D_source: Mapping | None = None) -> dict[str, np.ndarray]:
@@ -317,8 +93,6 @@ def _general_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: float
             D_terms[key] = (1.0, conv.request(key, G[key], 2))
     diff_terms = {}  # passage drift: w^2 * (rho_s (T - D_s)) where not a multiple of D_p
     if D_source is not None:  # D_p from another tensor than the drift's D_s
-        from . import _passage
-
         names = {}
         for key, d in D_source.items():
             if _is_zero(d):
@@ -410,30 +184,27 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
         float64 arrays, ``u`` in d per unit time, ``D`` in d**2 per unit time.
     """
     lam = _check_rule(rule)
-    if grid.axisymmetric or grid.hopper is not None:   # cylinders, cones, wedges
-        if diffusivity not in ("passage", "mean-field"):
-            raise ValueError(f"diffusivity: must be 'passage' or 'mean-field', got {diffusivity!r}")
-        if grid.axisymmetric:   # ring convolutions, 3D kernel
-            from ._axisymmetric import particle_fields as fields_of
-            rho_s = _check_inputs(grid, rho_s, None)
-        else:                   # a 2D wedge: the staircase grid.active is the silo
-            from ._hopper import particle_fields as fields_of
-            rho_s = _check_inputs(grid, rho_s, kernel)
-            _check_coefficient(grid, "spots.drift", spots.drift)
-        return fields_of(grid, rho_s, spots, kernel, lam, spot_diffusivity_tensor, diffusivity,
-                         walls, mask)
+    if diffusivity not in ("passage", "mean-field"):
+        raise ValueError(f"diffusivity: must be 'passage' or 'mean-field', got {diffusivity!r}")
+    build = _FIELDS_OF[grid.geometry.kind]
+    return build(grid, rho_s, spots, kernel, lam, spot_diffusivity_tensor, diffusivity, walls,
+                 mask)
+
+
+def _box_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, lam: float,
+                spot_diffusivity_tensor: Mapping | None, diffusivity: str, walls: str,
+                mask: np.ndarray | None) -> dict[str, np.ndarray]:
+    """The fields of a rectangular (2D) or cuboid (3D) silo: FFT convolutions, the
+    constant-coefficient fast paths, the renormalised walls of ``_walls`` and the wall
+    layer of ``_wall_layer``; arguments as :func:`particle_fields` (``lam`` checked)."""
     rho_s = _check_inputs(grid, rho_s, kernel)
     _check_coefficient(grid, "spots.drift", spots.drift)
     D_s = spot_diffusivity(grid, spots, spot_diffusivity_tensor)
     comps = _COMPONENTS[grid.dims]
     v_s = spots.drift
 
-    if diffusivity not in ("passage", "mean-field"):
-        raise ValueError(f"diffusivity: must be 'passage' or 'mean-field', got {diffusivity!r}")
     D_source = None
     if diffusivity == "passage":
-        from . import _passage
-
         D_source = _passage.source_tensor(grid, spots, D_s, kernel, lam)
 
     conv = _Convolutions(grid, kernel)
@@ -476,6 +247,17 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
     return {k: fields[k] for k in order}
 
 
+def _ring_fields(grid, rho_s, *args):
+    """Cylinders and cones: ring convolutions with a 3D kernel (``_axisymmetric``)."""
+    return _axisymmetric.particle_fields(grid, _check_inputs(grid, rho_s, None), *args)
+
+
+#: The particle fields of each shape (``grid.geometry.kind``): the box's FFT paths, the
+#: ring convolutions of an axisymmetric grid, the staircase of a 2D wedge.
+_FIELDS_OF = {"box": _box_fields, "axisymmetric": _ring_fields, "cone": _ring_fields,
+              "wedge": _hopper.particle_fields}
+
+
 def release_caches() -> None:
     """Free what the convolutions of :func:`particle_fields` keep for the next call of the
     same shape: FFT plans and their buffers, kernel spectra, the wall strips' spectra.
@@ -484,8 +266,6 @@ def release_caches() -> None:
     about 8 grid arrays) held through the tracer stage, which needs none of it; the next
     call rebuilds them (milliseconds: the plans are estimated, not measured).
     """
-    from . import _strips, convolution
-
     convolution.clear_caches()
     _strips.clear_spectra()
 
@@ -506,12 +286,10 @@ def flux_velocity(grid: Grid, fields: Mapping[str, np.ndarray]) -> dict[str, np.
     Returns:
         ``{"u_x", ["u_y",] "u_z"}`` in d per unit time.
     """
-    if grid.axisymmetric or grid.hopper is not None:   # cylindrical / staircase differences
-        from ._axisymmetric import flux_velocity as staircase_flux_velocity
-        return staircase_flux_velocity(grid, fields)
-    div = divergence(grid, {k: fields[k] for k in DIFFUSIVITY_KEYS[grid.dims]})
-    return {f"u_{a}": np.asarray(fields[f"u_{a}"], dtype=float) - div[a]
-            for a in _COMPONENTS[grid.dims]}
+    geometry = grid.geometry
+    div = geometry.divergence({k: fields[k] for k in geometry.diffusivity_keys})
+    return {f"u_{a}": geometry.restrict(np.asarray(fields[f"u_{a}"], dtype=float) - div[a])
+            for a in geometry.components}
 
 
 def incompressibility_defect(grid: Grid, fields: Mapping[str, np.ndarray]) -> np.ndarray:
@@ -526,8 +304,4 @@ def incompressibility_defect(grid: Grid, fields: Mapping[str, np.ndarray]) -> np
     Returns:
         grid-shaped array in 1 / unit time.
     """
-    flux = flux_velocity(grid, fields)
-    if grid.axisymmetric or grid.hopper is not None:
-        from ._axisymmetric import velocity_divergence
-        return velocity_divergence(grid, flux)
-    return sum(_gradient(grid, flux[f"u_{a}"], a) for a in _COMPONENTS[grid.dims])
+    return grid.geometry.velocity_divergence(flux_velocity(grid, fields))

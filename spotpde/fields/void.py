@@ -39,7 +39,8 @@ import numba
 import numpy as np
 from scipy.linalg import solve_banded
 
-from ..grid import Grid, derivative
+from ..geometry import derivative, masked_derivative
+from ..grid import Grid
 from ..parameters import Spots
 
 #: Staggered ("triangular-like") lattice: a void steps up one row and left or right by
@@ -344,7 +345,7 @@ def void_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, V1: float,
     rho = np.asarray(rho_s, dtype=float)
     if rho.shape != grid.shape:
         raise ValueError(f"rho_s has shape {rho.shape}, grid has {grid.shape}")
-    if grid.axisymmetric or grid.hopper is not None:
+    if not grid.geometry.uniform_cells:   # rings or a staircase
         return _staircase_void_fields(grid, rho, spots, V1, float(rule))
     h = grid.spacing
     v_s = np.broadcast_to(np.asarray(spots.drift, float), grid.shape)
@@ -383,16 +384,14 @@ def _staircase_void_fields(grid: Grid, rho: np.ndarray, spots: Spots, V1: float,
     there) that never cross a wall face of the staircase (one-sided next to inactive
     cells). Zero on inactive cells. A 2D wedge hopper gives ``u_x, u_z, D_xx, D_xz, D_zz``.
     """
-    from ._axisymmetric import masked_derivative
-
     h = grid.spacing
     act = grid.active
     rho = np.where(act, rho, 0.0)
     v_s = np.broadcast_to(np.asarray(spots.drift, float), grid.shape)
     Fh = rho * np.broadcast_to(np.asarray(spots.D_perp, float), grid.shape)
     Fz = rho * np.broadcast_to(np.asarray(spots.D_par, float), grid.shape)
-    axi = grid.axisymmetric
-    h_key = "r" if axi else "x"
+    axi = grid.geometry.has_axis          # even across the axis r = 0
+    h_key = grid.geometry.components[0]
     out = {
         f"u_{h_key}": 2.0 * lam * V1 * masked_derivative(Fh, h, 1, act, even_axis=axi),
         "u_z": -V1 * (rho * v_s - 2.0 * lam * masked_derivative(Fz, h, 0, act)),

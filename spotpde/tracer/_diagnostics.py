@@ -142,9 +142,7 @@ def sde_ensemble(grid: Grid, fields: Fields, starts, t_end: float, n: int, dt: f
     Raises:
         ValueError: ``grid`` is axisymmetric or has a hopper (box grids only).
     """
-    if grid.axisymmetric or grid.hopper is not None:
-        raise ValueError("grid: sde_ensemble walks particles in a Cartesian box; "
-                         "axisymmetric grids and hoppers are not supported")
+    grid.geometry.require("sde ensemble", "grid")
     dims = grid.dims
     starts = np.atleast_2d(np.asarray(starts, dtype=float))
     if starts.shape[1] != dims:

@@ -70,8 +70,9 @@ _RENAME = {"u_r": "u_x", "u_z": "u_z", "D_rr": "D_xx", "D_rz": "D_xz", "D_zz": "
 
 
 def special(grid: Grid) -> bool:
-    """True when the grid needs this module (axisymmetric or with a hopper)."""
-    return grid.axisymmetric or grid.hopper is not None
+    """True when the grid needs this module: its cells are rings or a staircase
+    (``grid.geometry.uniform_cells`` is False)."""
+    return not grid.geometry.uniform_cells
 
 
 class _Geometry:
@@ -80,22 +81,26 @@ class _Geometry:
     def __init__(self, grid: Grid):
         self.grid = grid
         self.twin = Grid(2, grid.x_range, grid.z_range, grid.spacing, walls=grid.walls)
-        self.h = h = grid.spacing
+        self.h = grid.spacing
         self.shape = nz, nx = grid.shape
-        self.axi = grid.axisymmetric
+        geometry = grid.geometry
+        #: ring cells: the metric drift, the face areas r_f, physical names renamed
+        self.axi = geometry.curved
         #: ``Q = weight * P``: ``2 pi r`` (axisymmetric) or 1, shape (1, nx)
-        self.weight = (2.0 * np.pi * grid.x)[None, :] if self.axi else np.ones((1, nx))
+        self.weight = geometry.density_weight
         act = np.asarray(grid.active, dtype=bool)
         self.active = act
-        self.hopper = grid.hopper is not None
+        #: a staircase: walls between active and inactive cells
+        self.hopper = geometry.masked
         # open faces: x faces (nz, nx+1), z faces (nz+1, nx); boundary faces follow
         # their one cell
+        open_x, open_z = geometry.open_faces()
         xm = np.zeros((nz, nx + 1), dtype=bool)
-        xm[:, 1:nx] = act[:, :-1] & act[:, 1:]
+        xm[:, 1:nx] = open_x
         xm[:, 0] = act[:, 0]
         xm[:, nx] = act[:, -1]
         zm = np.zeros((nz + 1, nx), dtype=bool)
-        zm[1:nz] = act[:-1] & act[1:]
+        zm[1:nz] = open_z
         zm[0] = act[0]
         zm[nz] = act[-1]
         self.xmask, self.zmask = xm, zm

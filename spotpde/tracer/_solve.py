@@ -196,10 +196,10 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
                         f"{', '.join(STEPPING_MODES)}")
     elif stepping in ("implicit", "imex", "multirate") and callable(fields):
         problems.append(f"stepping: {stepping!r} needs steady fields (a dict), got a callable")
-    elif stepping in ("implicit", "imex", "multirate") and _geometry.special(grid):
-        problems.append(f"stepping: {stepping!r} is for Cartesian boxes; axisymmetric and "
-                        "hopper grids step explicitly (use 'explicit' or 'auto', or "
-                        "t_end = inf for the geometrical propagator)")
+    elif stepping in ("implicit", "imex", "multirate") and \
+            not grid.geometry.supports("long-run stepping").ok:
+        problems.append(f"stepping: {stepping!r} "
+                        + grid.geometry.supports("long-run stepping").reason)
     if split is None:
         split = DEFAULT_SPLIT.get(stepping, DEFAULT_SPLIT["multirate"])
     if not (isinstance(split, (int, float)) and split >= 1):
@@ -237,7 +237,7 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
     saved = numba.get_num_threads()
     numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
     try:
-        if _geometry.special(grid):     # axisymmetric or hopper: Q = 2 pi r P on the twin
+        if _geometry.special(grid):     # rings or a staircase: Q = 2 pi r P on the twin
             # the long-run schemes assemble the Cartesian operator: explicit stepping only
             return _geometry.solve(_solve, grid, fields, P, t_end, frames, progress, lim,
                                    scheme, diffusion, cfl, outlet, check_mass, on_frame)
