@@ -173,12 +173,10 @@ def case_problems(case, rules: Sequence[float] = ()) -> list[str]:
         problems.append(f"--rules: each rule must be in ({lo:g}, {hi:g}] like kernel.rule, "
                         f"got {', '.join(f'{r:g}' for r in bad)}")
     d, o, s = case.data["domain"], case.data["orifice"], case.data["spots"]
-    if case.grid.axisymmetric:
-        problems.append('domain.coordinates: the comparison fits profiles across a '
-                        'Cartesian box; "axisymmetric" is not supported')
-    if d.get("hopper_angle") is not None:
-        problems.append("domain.hopper_angle: the comparison needs a flat floor (see "
-                        "notebooks/hoppers.ipynb for hopper flows)")
+    shape = case.grid.geometry.supports("kinematic comparison")
+    if not shape.ok:
+        key = "domain.hopper_angle" if d.get("hopper_angle") is not None else "domain.coordinates"
+        problems.append(f"{key}: {shape.reason}")
     if s.get("rho_max") is not None:
         problems.append("spots.rho_max: interacting spots have no steady state to compare "
                         "with the steady Kinematic Model; remove spots.rho_max (and "
