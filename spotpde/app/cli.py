@@ -223,15 +223,18 @@ def cmd_run(args) -> int:
 
 
 def cmd_plot(args) -> int:
-    """``spotpde plot OUT.nc [-o FIG.png]``: the standard figure; 2 for unreadable input."""
+    """``spotpde plot OUT.nc [-o FIG.png]``: the standard figure, in the format of the
+    extension; 2 for unreadable input or coordinates that cannot be drawn, 1 for a
+    failed write. Imports xarray, netCDF4 and matplotlib only (no solver, no numba)."""
     from . import io
-    from .plotting import plot_result
+    from .plotting import plot_result, plottable
 
     fig = Path(args.output) if args.output else Path(args.result).with_suffix(".png")
     _check_outputs([("-o", fig, FIGURE_FORMATS)], inputs=[args.result])
     try:
         ds = io.read_netcdf(args.result)
         io.check_single_run(ds, args.result)
+        ds = plottable(ds, args.result)
     except ValueError as exc:
         _say(str(exc))
         return EXIT_INVALID
