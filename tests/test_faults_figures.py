@@ -394,6 +394,13 @@ def test_run_plot_without_a_writable_home_leaves_no_matplotlib_directory(tmp_pat
         assert (tmp_path / "r.png").read_bytes().startswith(PNG)
         assert list(tmp.iterdir()) == []
         assert (cache / "matplotlib").is_dir()                # the font list persists
+    # plot ends with the same quick exit
+    proc = subprocess.run([sys.executable, "-m", "spotpde", "plot", "r.nc", "-o", "p.png"],
+                          cwd=tmp_path, env=run_env, capture_output=True, text=True,
+                          timeout=600)
+    assert proc.returncode == 0 and one_line(proc.stderr).startswith("spotpde: wrote")
+    assert (tmp_path / "p.png").read_bytes().startswith(PNG)
+    assert list(tmp.iterdir()) == []
 
 
 def test_plot_with_usable_matplotlib_directories_changes_nothing(tmp_path, monkeypatch):
