@@ -1,14 +1,15 @@
 """Standard figures of a result Dataset (matplotlib, drawn off-screen).
 
 :func:`plot_result` writes one multi-panel figure (PNG, PDF, SVG, ...: the format of the
-file's extension, written atomically by :func:`spotpde.app._figures.save_figure`): spot density; downward particle speed
-next to the kinematic model on the same colour scale; speed profiles at a few heights;
-streamlines of the particle drift; the tracer (the layered silo for a layered start,
-snapshots of the blob otherwise) and its mass budget. Each panel has its own function
-taking a Dataset and an Axes, for notebooks. 3D results are shown in the ``y`` mid-plane;
-axisymmetric results (dims ``(z, r)``) as the whole vertical section through the axis,
-mirrored (:func:`mirror_section`). Cells outside a hopper's walls are NaN and left blank.
-Axes are in particle diameters d, times in the case's time unit t.
+file's extension, written atomically by :func:`spotpde.app._figures.save_figure`): spot
+density; downward particle speed next to the kinematic model on the same colour scale;
+speed profiles at a few heights; streamlines of the particle drift; the tracer (the
+layered silo for a layered start, snapshots of the blob otherwise) and its mass budget.
+Each panel has its own function taking a Dataset and an Axes, for notebooks. 3D results
+are shown in the ``y`` mid-plane; axisymmetric results (dims ``(z, r)``) as the whole
+vertical section through the axis, mirrored (:func:`mirror_section`). Cells outside a
+hopper's walls are NaN and left blank. Axes are in particle diameters d, times in the
+case's time unit t.
 """
 
 from __future__ import annotations
