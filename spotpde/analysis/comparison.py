@@ -392,11 +392,18 @@ def plot_comparison(comparisons: Mapping[float, KinematicComparison], path=None)
 
     Args:
         comparisons: ``{lam: KinematicComparison}`` (e.g. from :func:`compare_rules`).
-        path: where to save a PNG; ``None`` returns the figure unsaved.
+        path: where to save the figure (the format of its extension, written
+            atomically: :func:`spotpde.app._figures.save_figure`); ``None`` returns the
+            figure unsaved.
 
     Returns:
         The matplotlib figure.
     """
+    from ..app._figures import figure_format, prepare_matplotlib, save_figure
+
+    if path is not None:
+        figure_format(path)          # an unsupported extension: refused before drawing
+    prepare_matplotlib()
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(13, 4.2), layout="tight")   # off-screen, no pyplot state
@@ -421,6 +428,6 @@ def plot_comparison(comparisons: Mapping[float, KinematicComparison], path=None)
     for a in ax:
         a.legend(fontsize=7)
     if path is not None:
-        fig.savefig(path, dpi=120)
+        save_figure(fig, path, dpi=120)
     return fig
 

@@ -171,18 +171,12 @@ def _client(workers):
 
 
 def _save_figure(fig, path: Path) -> None:
-    """Write a figure atomically: a unique temporary sibling, then a rename."""
-    import tempfile
-
+    """Write a pyplot figure atomically (:func:`._figures.save_figure`), then close it."""
     import matplotlib.pyplot as plt
 
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
+    from ._figures import save_figure
+
     try:
-        with os.fdopen(fd, "wb") as fh:
-            fig.savefig(fh, format=path.suffix.lstrip(".").lower() or "png")
-        os.replace(tmp, path)
+        save_figure(fig, path)
     finally:
         plt.close(fig)
-        if os.path.exists(tmp):
-            os.unlink(tmp)

@@ -25,6 +25,7 @@ temporary file of an atomic write is removed) and the command exits with status
 
 from __future__ import annotations
 
+import errno
 import os
 import signal
 import stat
@@ -79,6 +80,28 @@ def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
         return os.path.realpath(a) == os.path.realpath(b)
 
 
+def _full(directory: Path) -> bool:
+    """True when the file system holding ``directory`` has no block or no inode left
+    for this user (:func:`os.statvfs`; False when that cannot be told)."""
+    try:
+        st = os.statvfs(directory)
+    except (OSError, AttributeError):
+        return False
+    return st.f_blocks > 0 and st.f_bavail == 0 or st.f_files > 0 and st.f_favail == 0
+
+
+def _reason(exc: OSError, directory: Path) -> str:
+    """Why a file could not be created in ``directory``. Some file systems refuse a new
+    file on a full disk with "Permission denied": when the directory is writable and
+    the file system full, the reason given is the full disk."""
+    why = exc.strerror or str(exc)
+    if exc.errno in (errno.EACCES, errno.EPERM) and _full(directory):
+        if os.access(directory, os.W_OK | os.X_OK):
+            return f"{os.strerror(errno.ENOSPC)}: the file system is full"
+        return f"{why}; the file system is full too"
+    return why
+
+
 def output_problem(path: str | os.PathLike, *, inputs: Iterable = (), others: Iterable = (),
                    formats: Iterable[str] | None = None) -> str | None:
     """What stops ``path`` from being written as an output, or ``None``.
@@ -125,8 +148,7 @@ def output_problem(path: str | os.PathLike, *, inputs: Iterable = (), others: It
     try:
         fd, probe = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=parent)
     except OSError as exc:
-        why = exc.strerror or str(exc)
-        return f"cannot write in {parent} ({why}), got {shown!r}"
+        return f"cannot write in {parent} ({_reason(exc, parent)}), got {shown!r}"
     os.close(fd)
     try:
         os.unlink(probe)

@@ -1,13 +1,15 @@
 """Standard figures of a result Dataset (matplotlib, drawn off-screen).
 
-:func:`plot_result` writes one multi-panel PNG: spot density; downward particle speed
-next to the kinematic model on the same colour scale; speed profiles at a few heights;
-streamlines of the particle drift; the tracer (the layered silo for a layered start,
-snapshots of the blob otherwise) and its mass budget. Each panel has its own function
-taking a Dataset and an Axes, for notebooks. 3D results are shown in the ``y`` mid-plane;
-axisymmetric results (dims ``(z, r)``) as the whole vertical section through the axis,
-mirrored (:func:`mirror_section`). Cells outside a hopper's walls are NaN and left blank.
-Axes are in particle diameters d, times in the case's time unit t.
+:func:`plot_result` writes one multi-panel figure (PNG, PDF, SVG, ...: the format of the
+file's extension, written atomically by :func:`spotpde.app._figures.save_figure`): spot
+density; downward particle speed next to the kinematic model on the same colour scale;
+speed profiles at a few heights; streamlines of the particle drift; the tracer (the
+layered silo for a layered start, snapshots of the blob otherwise) and its mass budget.
+Each panel has its own function taking a Dataset and an Axes, for notebooks. 3D results
+are shown in the ``y`` mid-plane; axisymmetric results (dims ``(z, r)``) as the whole
+vertical section through the axis, mirrored (:func:`mirror_section`). Cells outside a
+hopper's walls are NaN and left blank. Axes are in particle diameters d, times in the
+case's time unit t.
 """
 
 from __future__ import annotations
@@ -15,10 +17,14 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-import matplotlib
-import numpy as np
-import xarray as xr
-from matplotlib.figure import Figure
+from ._figures import prepare_matplotlib, save_figure
+
+prepare_matplotlib()    # before matplotlib is imported: a writable home for its font cache
+
+import matplotlib  # noqa: E402
+import numpy as np  # noqa: E402
+import xarray as xr  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
 
 SPEED_CMAP = "viridis"
 LAYER_CMAP = "YlOrBr"
@@ -227,25 +233,112 @@ def plot_mass(ds: xr.Dataset, ax) -> None:
     ax.grid(alpha=0.3)
 
 
+#: Dimensions a result may have, each put in increasing order by :func:`plottable`.
+_AXES = ("t", "z", "y", "x", "r")
+
+
+def plottable(ds: xr.Dataset, source: str = "ds") -> xr.Dataset:
+    """``ds`` with every coordinate (``t``, ``z``, ``y``, ``x``, ``r``) in increasing
+    order, as :func:`plot_result` draws it (a result written with ``z`` decreasing is
+    the same silo).
+
+    Args:
+        ds: a result Dataset.
+        source: what ``ds`` is called in a message (the command line: its file).
+
+    Returns:
+        ``ds``, or a sorted copy.
+
+    Raises:
+        ValueError: ``<source>: coordinate z ...`` when a coordinate has values that are
+            not finite or repeated, or a spatial one is not equally spaced (the panels
+            are images and streamlines on a uniform grid).
+    """
+    unsorted = []
+    for dim in _AXES:
+        if dim not in ds.dims or dim not in ds.coords:
+            continue
+        values = np.asarray(ds[dim].values, dtype=float)
+        if not np.all(np.isfinite(values)):
+            raise ValueError(f"{source}: coordinate {dim} has values that are not finite")
+        if np.any(np.diff(values) <= 0):
+            unsorted.append(dim)
+    if unsorted:
+        ds = ds.sortby(unsorted)
+    for dim in _AXES:
+        if dim not in ds.dims or dim not in ds.coords:
+            continue
+        values = np.asarray(ds[dim].values, dtype=float)
+        step = np.diff(values)
+        if np.any(step <= 0):
+            raise ValueError(f"{source}: coordinate {dim} has repeated values; cannot plot")
+        if dim != "t" and step.size > 1 and not np.allclose(
+                step, (values[-1] - values[0]) / step.size):
+            raise ValueError(f"{source}: coordinate {dim} is not equally spaced "
+                             f"(steps from {step.min():.6g} to {step.max():.6g} d); "
+                             "cannot plot")
+    return ds
+
+
+#: Layout of :func:`plot_result` in inches: the height of a row's panels, the width of
+#: the line-plot column, the band of the overall title, the room above each panel (its
+#: title) and below it (ticks and label), and the left and right margins of an image
+#: panel (its colour bar is inside the panel) and of a line plot. A fixed layout draws
+#: the figure once; matplotlib's constrained layout drew it twice (a third of the time).
+_PANEL_H, _LINE_W, _TOP, _TITLE, _BELOW = 4.4, 5.0, 0.35, 0.32, 0.55
+_IMAGE_MARGINS, _LINE_MARGINS = (0.7, 0.6), (0.95, 0.2)
+
+
+def _panels(fig, panel_w: float) -> np.ndarray:
+    """The 2 x 4 panels of :func:`plot_result`: three image columns ``panel_w`` wide and
+    one line-plot column, placed by the margins above."""
+    width, height = fig.get_size_inches()
+    row = (height - _TOP) / 2
+    axes = np.empty((2, 4), dtype=object)
+    for i in range(2):
+        bottom = height - _TOP - (i + 1) * row + _BELOW
+        left = 0.0
+        for j, column in enumerate([panel_w] * 3 + [_LINE_W]):
+            before, after = _IMAGE_MARGINS if j < 3 else _LINE_MARGINS
+            axes[i, j] = fig.add_axes(((left + before) / width, bottom / height,
+                                       (column - before - after) / width,
+                                       (row - _BELOW - _TITLE) / height))
+            left += column
+    return axes
+
+
 def plot_result(ds: xr.Dataset, path: str | os.PathLike, *, dpi: int = 100) -> Path:
-    """Write the standard multi-panel figure of a result as PNG.
+    """Write the standard multi-panel figure of a result.
+
+    The panels a result cannot fill are replaced: without ``P_height`` the tracer's
+    second panel shows the speed difference, without ``mass`` and ``outflow`` the
+    budget panel shows the flux through each height.
 
     Args:
         ds: a result Dataset (from :func:`spotpde.run` or a netCDF file).
-        path: the PNG file to write (written atomically).
-        dpi: resolution.
+        path: the figure file, written atomically in the format its extension names
+            (``.png``, ``.pdf``, ``.svg``, ...: :func:`spotpde.app._figures.save_figure`).
+        dpi: resolution of a raster format, in dots per inch.
 
     Returns:
         The path written.
+
+    Raises:
+        ValueError: an unsupported extension, or coordinates that cannot be drawn
+            (:func:`plottable`).
+        spotpde.errors.WriteError: the file could not be written (disk full, ...).
     """
+    from ._figures import figure_format
+
+    figure_format(path)              # an unsupported extension: refused before drawing
+    ds = plottable(ds)
     m = midplane(ds)
     width = float(m.x[-1] - m.x[0]) if m.sizes["x"] > 1 else 1.0
     height = float(m.z[-1] - m.z[0]) if m.sizes["z"] > 1 else 1.0
-    panel_h = 4.4
-    panel_w = float(np.clip(panel_h * width / height + 1.2, 3.2, 7.0))
+    panel_w = float(np.clip(_PANEL_H * width / height + 1.2, 3.2, 7.0))
     # a bare Figure (no pyplot): drawn off-screen whatever backend the user has chosen
-    fig = Figure(figsize=(3 * panel_w + 5.0, 2 * panel_h + 0.9), layout="constrained")
-    axes = fig.subplots(2, 4, gridspec_kw={"width_ratios": [panel_w] * 3 + [5.0]})
+    fig = Figure(figsize=(3 * panel_w + _LINE_W, 2 * _PANEL_H + 0.9))
+    axes = _panels(fig, panel_w)
     plot_spot_density(ds, axes[0, 0])
     plot_speed(ds, axes[0, 1], axes[0, 2])
     plot_profiles(ds, axes[0, 3])
@@ -257,11 +350,16 @@ def plot_result(ds: xr.Dataset, path: str | os.PathLike, *, dpi: int = 100) -> P
             plot_layers(ds, axes[1, 2], nt - 1)
         else:
             plot_snapshots(ds, axes[1, 1])
-            plot_height_propagator(ds, axes[1, 2])
-        plot_mass(ds, axes[1, 3])
+            if "P_height" in ds:
+                plot_height_propagator(ds, axes[1, 2])
+            else:
+                plot_speed_difference(ds, axes[1, 2])
     else:
         plot_diffusivity(ds, axes[1, 1])
         plot_speed_difference(ds, axes[1, 2])
+    if "P" in ds and "mass" in ds and "outflow" in ds:
+        plot_mass(ds, axes[1, 3])
+    else:
         plot_flux(ds, axes[1, 3])
     model = ds.attrs.get("model", "spot")
     n = "³" if _is_3d(ds) else "²"
@@ -271,15 +369,7 @@ def plot_result(ds: xr.Dataset, path: str | os.PathLike, *, dpi: int = 100) -> P
                  f"V1 = {ds.attrs.get('V1', float('nan')):.3g} d{n}, "
                  f"V2 = {ds.attrs.get('V2', float('nan')):.3g} d{n}, "
                  f"rule λ = {ds.attrs.get('rule', float('nan')):g}" + where, fontsize=12)
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    try:
-        fig.savefig(tmp, dpi=dpi)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return path
+    return save_figure(fig, path, dpi=dpi)
 
 
 def plot_height_propagator(ds: xr.Dataset, ax) -> None:

@@ -59,12 +59,18 @@ def plot_fit(ds: xr.Dataset, path=None, *, dpi: int = 100):
 
     Args:
         ds: the result of :func:`spotpde.fit` (or its netCDF file read back).
-        path: if given, the figure is written there (the format from the extension).
+        path: if given, the figure is written there (the format of its extension,
+            written atomically: :func:`spotpde.app._figures.save_figure`).
         dpi: resolution of a raster file.
 
     Returns:
         The matplotlib Figure.
     """
+    from ..app._figures import figure_format, prepare_matplotlib, save_figure
+
+    if path is not None:
+        figure_format(path)          # an unsupported extension: refused before drawing
+    prepare_matplotlib()
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -127,7 +133,7 @@ def plot_fit(ds: xr.Dataset, path=None, *, dpi: int = 100):
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     if path is not None:
-        fig.savefig(path, dpi=dpi)
+        save_figure(fig, path, dpi=dpi)
     return fig
 
 

@@ -288,8 +288,14 @@ def plot_space_time(ds, variable: str = "free_volume_t", x: float | None = None,
     shape, ``_traffic.FluxShape.c``, at the drift ``v_s`` attribute) for the space-time mean
     density of the later half of the run mark the speed of small waves: meaningful only
     for a nearly uniform column.
-    Returns the matplotlib Figure; ``path`` also saves it.
+    Returns the matplotlib Figure; ``path`` also saves it (the format of its extension,
+    written atomically: :func:`spotpde.app._figures.save_figure`).
     """
+    from ..app._figures import figure_format, prepare_matplotlib, save_figure
+
+    if path is not None:
+        figure_format(path)          # an unsupported extension: refused before drawing
+    prepare_matplotlib()
     import matplotlib
     if ax is None:
         matplotlib.use("Agg")
@@ -314,5 +320,5 @@ def plot_space_time(ds, variable: str = "free_volume_t", x: float | None = None,
     ax.set_ylabel("z (d)")
     ax.set_ylim(z[0], z[-1])
     if path is not None:
-        fig.savefig(path, dpi=110, bbox_inches="tight")
+        save_figure(fig, path, dpi=110, bbox_inches="tight")
     return fig
