@@ -269,7 +269,7 @@ def advance3(prm, cnt, n_ticks, sx, sy, sz, sxi, syi,
 
     Arrays: spots ``sx, sy, sz`` and persistent unit step variables ``sxi, syi``; ``srel``
     ``(cap, 4)``: the start ``(x, y, z)`` of the segment not yet relaxed and the steps
-    since; ``tpos`` ``(n_rec, n_tracked, 3)``; ``phi_tab`` ``(ny_t, nx_t)`` (or 1 x 1:
+    since; ``tpos`` ``(n_rec, n_tracked, 3)`` in columns ``(x, z, y)``; ``phi_tab`` ``(ny_t, nx_t)`` (or 1 x 1:
     no renormalisation); ``old`` ``(N, 3)``. The others as in ``_mc_kernels.advance``.
 
     Returns:
@@ -427,8 +427,8 @@ def advance3(prm, cnt, n_ticks, sx, sy, sz, sxi, syi,
                 if ts >= 0:
                     if status[i] == P_IN:
                         tpos[r, ts, 0] = px[i]
-                        tpos[r, ts, 1] = py[i]
-                        tpos[r, ts, 2] = pz[i]
+                        tpos[r, ts, 1] = pz[i]
+                        tpos[r, ts, 2] = py[i]
                     else:
                         tpos[r, ts, 0] = np.nan
                         tpos[r, ts, 1] = np.nan

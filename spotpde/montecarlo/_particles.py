@@ -108,7 +108,7 @@ def _rsa(x0, x1, z0, z1, n_target, d, seed, max_tries):
 def dense_packing(grid: Grid, phi: float | None = None, polydispersity: float = 0.1,
                   distribution: str = "uniform", seed: int = 0,
                   region: Sequence[float] | None = None, tolerance: float = 1e-3,
-                  max_iterations: int = 20000):
+                  max_iterations: int | None = None):
     """A dense random packing of slightly polydisperse disks (2D) or spheres (3D grid,
     e.g. a thin slab), made by soft-core relaxation.
 
@@ -123,11 +123,14 @@ def dense_packing(grid: Grid, phi: float | None = None, polydispersity: float = 
     Args:
         grid: the silo; ``dims`` 2 or 3.
         phi: area fraction (2D, default 0.8, in (0, 0.9)) or volume fraction (3D,
-            default 0.55, in (0, 0.7)).
-        region: sub-box ``(x0, x1, z0, z1)`` (2D) or ``(x0, x1, y0, y1, z0, z1)`` (3D).
+            default 0.55, in (0, 0.7); in a slab 4 d deep the sweeps reach 1e-3 d at
+            0.55 after about 40000 sweeps, and stay jammed at 0.57).
+        max_iterations: sweeps at most (default 20000 in 2D, 100000 in 3D).
+        region: sub-box ``(x0, x1, z0, z1)`` (2D) or ``(x0, x1, z0, z1, y0, y1)`` (3D).
 
     Returns:
-        (positions ``(N, 2)`` or ``(N, 3)`` in d, diameters ``(N,)`` in d, largest
+        (positions ``(N, 2)`` ``(x, z)`` or ``(N, 3)`` ``(x, z, y)`` in d (the depth
+        last, as the 3D Monte Carlo takes them), diameters ``(N,)`` in d, largest
         remaining overlap).
 
     Raises:
@@ -135,8 +138,10 @@ def dense_packing(grid: Grid, phi: float | None = None, polydispersity: float = 
     """
     if grid.dims == 3:
         return _dense_packing3(grid, 0.55 if phi is None else phi, polydispersity,
-                               distribution, seed, region, tolerance, max_iterations)
+                               distribution, seed, region, tolerance,
+                               100000 if max_iterations is None else max_iterations)
     phi = 0.8 if phi is None else phi
+    max_iterations = 20000 if max_iterations is None else max_iterations
     if not 0.0 < phi < 0.9:
         raise ValueError(f"phi: must be in (0, 0.9), got {phi}")
     x0, x1, z0, z1 = _region(grid, region)
@@ -158,11 +163,11 @@ def _dense_packing3(grid, phi, polydispersity, distribution, seed, region, toler
     if not 0.0 < phi < 0.7:
         raise ValueError(f"phi: must be in (0, 0.7) for spheres, got {phi}")
     if region is None:
-        box = (*grid.x_range, *grid.y_range, *grid.z_range)
+        box = (*grid.x_range, *grid.z_range, *grid.y_range)
     else:
         box = tuple(float(v) for v in region)
         if len(box) != 6:
-            raise ValueError(f"region: need (x0, x1, y0, y1, z0, z1) in 3D, got {region!r}")
+            raise ValueError(f"region: need (x0, x1, z0, z1, y0, y1) in 3D, got {region!r}")
     lo, hi = np.array(box[0::2]), np.array(box[1::2])
     volume = float(np.prod(hi - lo))
     rng = np.random.default_rng(seed)

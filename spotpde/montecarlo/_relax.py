@@ -421,8 +421,9 @@ def relax_packing(positions, diameters, box, *, relax: Relax | dict | None = Non
 
     Args:
         positions: ``(N, 2)`` centres ``(x, z)`` in d, or ``(N, 3)`` centres
-            ``(x, y, z)`` of spheres (``_relax3d``). diameters: ``(N,)`` in d.
-        box: ``(x0, x1, z0, z1)`` (2D) or ``(x0, x1, y0, y1, z0, z1)`` (3D); side (and
+            ``(x, z, y)`` of spheres (``_relax3d``; the depth ``y`` last, as in the 3D
+            Monte Carlo and ``spotpde.analysis.packing``). diameters: ``(N,)`` in d.
+        box: ``(x0, x1, z0, z1)`` (2D) or ``(x0, x1, z0, z1, y0, y1)`` (3D); side (and
             front and back) walls repel if ``walls == "reflecting"``, the floor outside
             ``relax.opening`` (default: none, a closed floor) and the lid ``z1`` if ``lid``.
         relax: the :class:`Relax` whose ``alpha`` and ``margin`` are used.
@@ -449,10 +450,11 @@ def relax_packing(positions, diameters, box, *, relax: Relax | dict | None = Non
     if dims == 3:
         from ._relax3d import relax_all3
 
-        lx, ly, lz = (np.ascontiguousarray(P[:, k]) for k in range(3))
-        sweeps, worst = relax_all3(lx, ly, lz, d, mob, np.asarray(box, float), rp,
-                                   int(max_iterations), float(tolerance), bool(hold_com))
-        return np.column_stack([lx, ly, lz]), int(sweeps), float(worst)
+        lx, lz, ly = (np.ascontiguousarray(P[:, k]) for k in range(3))
+        b = np.asarray(box, float)[[0, 1, 4, 5, 2, 3]]  # (x0, x1, y0, y1, z0, z1)
+        sweeps, worst = relax_all3(lx, ly, lz, d, mob, b, rp, int(max_iterations),
+                                   float(tolerance), bool(hold_com))
+        return np.column_stack([lx, lz, ly]), int(sweeps), float(worst)
     lx = np.ascontiguousarray(P[:, 0])
     lz = np.ascontiguousarray(P[:, 1])
     sweeps, worst = relax_all(lx, lz, d, mob, np.asarray(box, float), rp, int(max_iterations),

@@ -124,11 +124,13 @@ def kernel_params(kernel, cutoff: float = CUTOFF) -> KernelParams:
 
 def kernel_evaluate(kp: KernelParams, x, z, *more) -> np.ndarray:
     """The Monte Carlo's own (numba) evaluation of ``w`` at offsets ``(x, z)`` in d, or
-    ``(x, y, z)`` for a 3D kernel."""
+    at ``(x, y, z)`` (three arguments, in that order) for a 3D kernel."""
     if kp.dims == 3:
         from ._mc3d import kernel_eval3
 
-        x, y, z = np.broadcast_arrays(*(np.asarray(v, float) for v in (x, z, *more)))
+        if len(more) != 1:
+            raise TypeError("kernel_evaluate: a 3D kernel takes offsets (x, y, z)")
+        x, y, z = np.broadcast_arrays(*(np.asarray(v, float) for v in (x, z, more[0])))
         out = kernel_eval3(kp.shape, *(np.ascontiguousarray(v).ravel() for v in (x, y, z)),
                            kp.size, kp.size_v, kp.amp, kp.reach[0], kp.reach[1])
         return out.reshape(x.shape)
@@ -149,7 +151,7 @@ class MCResult:
         grid, orifice, spots, kernel (:class:`KernelParams`), rule, gamma, step (Delta),
             steps ("gaussian"/"binary"), seed, t_end, dt (time per tick), n_ticks.
         initial: ``(N, 2)`` initial particle positions ``(x, z)`` (3D: ``(N, 3)``,
-            ``(x, y, z)``); ``final``: final ones.
+            ``(x, z, y)``: the depth last); ``final``: final ones.
         status: per particle 0 inside, 1 left through the orifice, 2 left through an
             open side. ``exit_x``, ``exit_t``: where and when it left (NaN if not).
         tracked: indices of tracked particles. ``times``: snapshot times;
@@ -248,7 +250,8 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
         rule: lam, where along the step the influence is evaluated (1/2 midpoint, 1 end).
         particles: ``(N, 2)`` initial ``(x, z)`` (see :func:`lattice`,
             :func:`random_packing`, :func:`blob`); ``None`` for probes only. 3D:
-            ``(N, 3)`` ``(x, y, z)`` (:func:`dense_packing` of a 3D grid).
+            ``(N, 3)`` in columns ``(x, z, y)``, the depth last (:func:`dense_packing`
+            of a 3D grid); positions, snapshots and ``final`` keep that order.
         tracked: ``None`` (no trajectories), ``"all"``, or indices of particles whose
             positions are snapshot and whose level crossings are recorded.
         t_end: duration; or ``n_spots``: duration ``n_spots / Q0`` (expected spot count).

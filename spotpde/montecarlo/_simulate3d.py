@@ -93,7 +93,8 @@ def run3d(grid, orifice, spots, kp, *, rule, gamma, step, steps, seed, t_end, dt
           walls, relax, diameters, relax_reach):
     """Run the 3D model with the arguments :func:`~spotpde.montecarlo.simulate` checked
     and derived (lengths in d). Returns an :class:`~spotpde.montecarlo.MCResult` with
-    ``(N, 3)`` positions and no probes."""
+    ``(N, 3)`` positions in columns ``(x, z, y)`` (the first two as in 2D, the depth
+    last; the order of ``spotpde.analysis.packing``) and no probes."""
     from ._simulate import STEPS, MCResult
 
     if kp.dims != 3:
@@ -122,9 +123,9 @@ def run3d(grid, orifice, spots, kp, *, rule, gamma, step, steps, seed, t_end, dt
 
     P = np.zeros((0, 3)) if particles is None else np.asarray(particles, dtype=float)
     if P.ndim != 2 or P.shape[1] != 3:
-        raise ValueError(f"particles: a 3D run needs (N, 3) positions (x, y, z), got shape {P.shape}")
+        raise ValueError(f"particles: a 3D run needs (N, 3) positions (x, z, y), got shape {P.shape}")
     n = P.shape[0]
-    px, py, pz = (np.ascontiguousarray(P[:, k]).copy() for k in range(3))
+    px, pz, py = (np.ascontiguousarray(P[:, k]).copy() for k in range(3))
     status = np.zeros(n, np.int64)
     status[pz < z0] = K.P_ORIFICE
     moved = np.zeros(n)
@@ -194,7 +195,7 @@ def run3d(grid, orifice, spots, kp, *, rule, gamma, step, steps, seed, t_end, dt
     return MCResult(
         grid=grid, orifice=orifice, spots=spots, kernel=kp, rule=rule, gamma=gamma, step=step,
         steps=steps, seed=seed, t_end=t_end, dt=dt, n_ticks=n_ticks, initial=P.copy(),
-        final=np.column_stack([px, py, pz]), status=status, exit_x=exit_x, exit_t=exit_t,
+        final=np.column_stack([px, pz, py]), status=status, exit_x=exit_x, exit_t=exit_t,
         tracked=tracked, times=(rec_ticks + 1) * dt, positions=tpos, levels=levels,
         cross_x=cross_x, cross_t=cross_t, probe=None, rho_hist=None,
         batch_ticks=np.array([n_ticks]),
