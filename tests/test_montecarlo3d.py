@@ -292,3 +292,21 @@ def test_3d_arguments_are_checked():
     assert P[:, 2].min() >= -1.0 and P[:, 2].max() <= 1.0 and P[:, 1].max() > 4.0
     with pytest.raises(ValueError, match="^phi"):
         mc.dense_packing(g, 0.8)
+
+
+def test_from_case_runs_the_slab3d_case():
+    import pathlib
+
+    import spotpde
+
+    case = spotpde.load_case(pathlib.Path(__file__).parents[1] / "cases" / "slab3d.toml")
+    r = mc.from_case(case, t_end=3.0, tracked=[0, 1, 2], seed=1)
+    n = 50 * 100 * 8                      # the simple cubic lattice of the 50 x 100 x 8 d slab
+    assert r.initial.shape == r.final.shape == (n, 3)
+    assert r.positions.shape[1:] == (3, 3) and r.kernel.dims == 3
+    assert r.counters["spots_injected"] > 0 and r.counters["particle_updates"] > 0
+    inside = r.status == 0
+    assert np.all(np.abs(r.final[inside, 2]) <= 4.0) and np.all(np.abs(r.final[inside, 0]) <= 25.0)
+    assert np.any(r.final[:, 1] != r.initial[:, 1])
+    with pytest.raises(ValueError, match="^particles"):
+        mc.from_case(case, t_end=1.0, particles="tracer")

@@ -490,10 +490,12 @@ def from_case(case, *, particles="lattice", spacing: float = 1.0, **kwargs) -> M
     """Run the Monte Carlo with a :class:`spotpde.cases.Case`'s parameters.
 
     Args:
-        case: a loaded case (2D); its grid, orifice, spots, kernel and rule are used.
+        case: a loaded case (2D or 3D); its grid, orifice, spots, kernel and rule are used.
         particles: ``"lattice"`` (triangular lattice of ``spacing``), ``"random"``
             (:func:`random_packing`, phi 0.5), ``"tracer"`` (2000 particles from the
-            tracer blob, all tracked), ``None``, or an ``(N, 2)`` array.
+            tracer blob, all tracked), ``None``, or an ``(N, 2)`` array. 3D: a simple
+            cubic lattice, :func:`dense_packing` at phi 0.5, no ``"tracer"``; arrays
+            ``(N, 3)`` in columns ``(x, z, y)``.
         **kwargs: passed to :func:`simulate` (``t_end`` defaults to ``case.tracer.t_end``;
             for ``tracer.model = "void"`` the step defaults to 1 d, larger than the void's
             radius, so that a void displaces a given particle at most once).
@@ -503,6 +505,10 @@ def from_case(case, *, particles="lattice", spacing: float = 1.0, **kwargs) -> M
         raise ValueError("case: the discrete spot model runs in rectangular boxes; this "
                          "case is " + ("axisymmetric" if grid.axisymmetric else "a hopper")
                          + " (domain.coordinates / domain.hopper_angle)")
+    if grid.dims == 3 and isinstance(particles, str):
+        from ._simulate3d import case_particles3d
+
+        particles = case_particles3d(grid, particles, spacing, kwargs.get("seed", 0))
     if isinstance(particles, str):
         if particles == "lattice":
             particles = lattice(grid, spacing)

@@ -26,7 +26,23 @@ from . import _mc_kernels as K
 from ._mc3d import advance3, build_cells3, make_params3
 from ._relax import draw_diameters, relax_params
 
-__all__ = ["run3d", "coverage_table3"]
+__all__ = ["run3d", "coverage_table3", "case_particles3d"]
+
+
+def case_particles3d(grid, name: str, spacing: float = 1.0, seed: int = 0) -> np.ndarray:
+    """Initial spheres of ``from_case`` in a 3D grid, ``(N, 3)`` in columns ``(x, z, y)``:
+    ``"lattice"`` a simple cubic lattice of ``spacing`` d filling the box, ``"random"``
+    a :func:`~spotpde.montecarlo.dense_packing` at volume fraction 0.5."""
+    if name == "lattice":
+        axes = [np.arange(lo + 0.5 * spacing, hi, spacing)
+                for lo, hi in (grid.x_range, grid.z_range, grid.y_range)]
+        return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    if name == "random":
+        from ._particles import dense_packing
+
+        return dense_packing(grid, 0.5, seed=seed)[0]
+    raise ValueError(f"particles: unknown {name!r} for a 3D case; valid: 'lattice', "
+                     "'random', None or an (N, 3) array of positions (x, z, y)")
 
 
 def _footprint(kp, u):
