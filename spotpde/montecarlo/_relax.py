@@ -20,8 +20,9 @@ packing; see docs/packing.md).
 
 Here: :class:`Relax` (the parameters, the names of a future ``[montecarlo] relax``
 table), :func:`draw_diameters`, :func:`relax_packing` (relax a whole packing, e.g. to
-make an initial one) and the numba kernels :func:`relax_block` (one block, called from
-``_mc_kernels.advance``) and :func:`relax_all`.
+make an initial one; spheres too) and the numba kernels :func:`relax_block` (one block,
+called from ``_mc_kernels.advance``) and :func:`relax_all`. Spheres in 3D (masses
+``d_i^3``, front and back walls): ``_relax3d``.
 """
 
 from __future__ import annotations
