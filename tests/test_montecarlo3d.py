@@ -224,7 +224,8 @@ def test_3d_uniform_flow_drift_and_diffusivity_match_the_continuum():
     spot passages); the error is the scatter of 8 replicas. Midpoint rule: ``D_xx = D_yy``
     below the mean field ``flux b V2`` by the passage correlation (docs/montecarlo.md
     section 4), and resolved as such. ``D_zz`` (the passages' shot noise) is not asserted:
-    it reads 7 +- 2 % above the small-step prediction here (docs/packing.md, section 5)."""
+    it reads 7 +- 2 % above the small-step prediction at this step, 1 +- 2 % at half of it
+    (docs/packing.md, section 6: finite steps)."""
     kernel = kernels.Gaussian(sigma=0.5, volume=0.02, dims=3)
     W, flux = 10.0, 0.25
     g = Grid(3, (-W / 2, W / 2), (0.0, 16.0), 1.0, y_range=(-W / 2, W / 2))
