@@ -10,6 +10,8 @@ See docs/montecarlo.md.
 Private modules: ``_simulate`` (run, result, kernel reduction), ``_mc_kernels`` (the
 numba loop and its :class:`~spotpde.montecarlo._mc_kernels.Params`), ``_particles``
 (particle sets), ``_relax`` (packing constraints: soft-core relaxation, docs/packing.md),
+``_simulate3d``, ``_mc3d``, ``_relax3d`` (the 3D model: spheres in a box or thin slab,
+docs/packing.md section 6),
 ``_measure`` (fields and statistics of a run), ``_predict`` (closed
 forms).
 """

@@ -95,7 +95,8 @@ def particle_frames(result: MCResult, layer_spacing: float | None = None) -> xr.
     Frame 0 is the initial state (``t = 0``), then one frame per snapshot. With
     ``layer_spacing`` a boolean ``layer`` variable marks particles that started in the
     coloured bands ``[k s, k s + s/2)`` (the layered-silo picture, docs/interface.md, ``tracer.layers``),
-    so the discrete layered silo is ``plt.scatter(f.x[k], f.z[k], c=f.layer)``.
+    so the discrete layered silo is ``plt.scatter(f.x[k], f.z[k], c=f.layer)``. A 3D
+    run also gets ``y``.
     """
     start = result.initial[result.tracked]
     pos = np.concatenate([start[None], result.positions], axis=0)
@@ -105,6 +106,9 @@ def particle_frames(result: MCResult, layer_spacing: float | None = None) -> xr.
          "z": (("t", "particle"), pos[..., 1], {"units": "1", "long_name": "particle z (NaN: gone), in particle diameters"})},
         coords={"t": ("t", t, {"units": "1", "long_name": "time, in the case's time unit"}),
                 "particle": ("particle", result.tracked)})
+    if pos.shape[-1] == 3:
+        ds["y"] = (("t", "particle"), pos[..., 2],
+                   {"units": "1", "long_name": "particle y (NaN: gone), in particle diameters"})
     if layer_spacing is not None:
         ds["layer"] = ("particle", layer_mask(start[:, 1], layer_spacing),
                        {"units": "1", "long_name": f"started in a coloured band (spacing {layer_spacing} d)"})
@@ -144,7 +148,7 @@ def _windows(result: MCResult, select=None):
 
     Returns (dx, dz, tau, start) with dx, dz of shape (n_windows, n_tracked) (NaN where a
     particle was gone at either end), tau the window durations, start the positions at
-    each window's start (n_windows, n_tracked, 2).
+    each window's start (n_windows, n_tracked, 2) (3D: ``(.., 3)``, columns ``(x, z, y)``).
     """
     pos = np.concatenate([result.initial[result.tracked][None], result.positions], axis=0)
     times = np.concatenate([[0.0], result.times])
@@ -171,13 +175,21 @@ def displacement_statistics(result: MCResult, select=None, skip: int = 0) -> dic
     Returns:
         dict with ``u_x``, ``u_z`` (d/time), ``D_xx``, ``D_zz``, ``D_xz`` (d**2/time),
         ``b_p = D_xx / |u_z|`` and ``b_p_par = D_zz / |u_z|`` (d), each with ``*_se``,
-        and ``n_windows``, ``n_particles``.
+        and ``n_windows``, ``n_particles``; a 3D run adds ``u_y`` and ``D_yy``.
     """
-    dx, dz, tau, _ = _windows(result, select)
+    dx, dz, tau, start = _windows(result, select)
     dx, dz, tau = dx[skip:], dz[skip:], tau[skip:]
     ok = np.isfinite(dx) & np.isfinite(dz)
     keep = ok.all(axis=0)
     dx, dz = dx[:, keep], dz[:, keep]
+    extra = ()
+    if start.shape[-1] == 3:  # 3D: the y component too
+        pos = np.concatenate([result.initial[result.tracked][None], result.positions], axis=0)
+        if select is not None:
+            pos = pos[:, np.asarray(select)]
+        dy = np.diff(pos[..., 2], axis=0)[skip:][:, keep]
+        my = dy.mean()
+        extra = (("u_y", dy.mean(axis=1) / tau), ("D_yy", ((dy - my) ** 2).mean(axis=1) / (2 * tau)))
     ux = dx.mean(axis=1) / tau
     uz = dz.mean(axis=1) / tau
     mx = dx.mean()  # the drift is common to all windows when tau is constant
@@ -187,7 +199,8 @@ def displacement_statistics(result: MCResult, select=None, skip: int = 0) -> dic
     Dxz = ((dx - mx) * (dz - mz)).mean(axis=1) / (2 * tau)
     n = ux.size
     out = {"n_windows": n, "n_particles": int(keep.sum())}
-    for name, v in (("u_x", ux), ("u_z", uz), ("D_xx", Dxx), ("D_zz", Dzz), ("D_xz", Dxz)):
+    for name, v in (("u_x", ux), ("u_z", uz), ("D_xx", Dxx), ("D_zz", Dzz), ("D_xz", Dxz),
+                    *extra):
         out[name] = float(v.mean())
         out[name + "_se"] = float(v.std(ddof=1) / math.sqrt(n)) if n > 1 else math.nan
     # ratios with jackknife errors over windows
@@ -248,7 +261,8 @@ def velocity_correlation(result: MCResult, bins: np.ndarray, select=None, compon
         p = start[k, ok]
         var = np.mean(q * q)
         iu, ju = np.triu_indices(q.size, 1)
-        r = np.hypot(*(p[iu] - p[ju]).T)
+        r = (np.hypot(*(p[iu] - p[ju]).T) if p.shape[1] == 2
+             else np.sqrt(((p[iu] - p[ju]) ** 2).sum(axis=1)))
         which = np.digitize(r, bins) - 1
         good = (which >= 0) & (which < nbin)
         prod = q[iu][good] * q[ju][good] / var

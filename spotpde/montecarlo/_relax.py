@@ -20,8 +20,9 @@ packing; see docs/packing.md).
 
 Here: :class:`Relax` (the parameters, the names of a future ``[montecarlo] relax``
 table), :func:`draw_diameters`, :func:`relax_packing` (relax a whole packing, e.g. to
-make an initial one) and the numba kernels :func:`relax_block` (one block, called from
-``_mc_kernels.advance``) and :func:`relax_all`.
+make an initial one; spheres too) and the numba kernels :func:`relax_block` (one block,
+called from ``_mc_kernels.advance``) and :func:`relax_all`. Spheres in 3D (masses
+``d_i^3``, front and back walls): ``_relax3d``.
 """
 
 from __future__ import annotations
@@ -416,14 +417,16 @@ def relax_packing(positions, diameters, box, *, relax: Relax | dict | None = Non
                   walls: str = "reflecting", lid: bool = True, xc: float = 0.0,
                   tolerance: float = 1e-3, max_iterations: int = 20000,
                   hold_com: bool = False, mobile=None):
-    """Relax a packing of disks by the soft-core sweeps until no overlap exceeds
-    ``tolerance`` (in d), or ``max_iterations`` sweeps.
+    """Relax a packing of disks (or spheres) by the soft-core sweeps until no overlap
+    exceeds ``tolerance`` (in d), or ``max_iterations`` sweeps.
 
     Args:
-        positions: ``(N, 2)`` centres ``(x, z)`` in d. diameters: ``(N,)`` in d.
-        box: ``(x0, x1, z0, z1)``; side walls repel if ``walls == "reflecting"``, the
-            floor outside ``relax.opening`` (default: none, a closed floor) and the lid
-            ``z1`` if ``lid``.
+        positions: ``(N, 2)`` centres ``(x, z)`` in d, or ``(N, 3)`` centres
+            ``(x, z, y)`` of spheres (``_relax3d``; the depth ``y`` last, as in the 3D
+            Monte Carlo and ``spotpde.analysis.packing``). diameters: ``(N,)`` in d.
+        box: ``(x0, x1, z0, z1)`` (2D) or ``(x0, x1, z0, z1, y0, y1)`` (3D); side (and
+            front and back) walls repel if ``walls == "reflecting"``, the floor outside
+            ``relax.opening`` (default: none, a closed floor) and the lid ``z1`` if ``lid``.
         relax: the :class:`Relax` whose ``alpha`` and ``margin`` are used.
         hold_com: subtract the mean grain-grain displacement (as in the Monte Carlo).
         mobile: boolean mask of grains that move (default all).
@@ -431,8 +434,12 @@ def relax_packing(positions, diameters, box, *, relax: Relax | dict | None = Non
     Returns:
         (positions, sweeps, largest remaining overlap).
     """
-    P = np.array(positions, dtype=float).reshape(-1, 2)
+    P = np.array(positions, dtype=float)
+    dims = 3 if P.ndim == 2 and P.shape[1] == 3 else 2
+    P = P.reshape(-1, dims)
     d = np.asarray(diameters, dtype=float).reshape(-1)
+    if np.size(box) != 2 * dims:
+        raise ValueError(f"box: need {2 * dims} numbers for {dims}D positions, got {np.size(box)}")
     if d.shape[0] != P.shape[0]:
         raise ValueError(f"diameters: need one per position ({P.shape[0]}), got {d.shape[0]}")
     if walls not in ("reflecting", "open"):
@@ -441,6 +448,14 @@ def relax_packing(positions, diameters, box, *, relax: Relax | dict | None = Non
     rx = replace(rx, radius=1.0, opening=0.0 if rx.opening is None else rx.opening)
     rp = relax_params(rx, d, xc, walls == "reflecting", lid)
     mob = np.ones(len(d), np.int64) if mobile is None else np.asarray(mobile, bool).astype(np.int64)
+    if dims == 3:
+        from ._relax3d import relax_all3
+
+        lx, lz, ly = (np.ascontiguousarray(P[:, k]) for k in range(3))
+        b = np.asarray(box, float)[[0, 1, 4, 5, 2, 3]]  # (x0, x1, y0, y1, z0, z1)
+        sweeps, worst = relax_all3(lx, ly, lz, d, mob, b, rp, int(max_iterations),
+                                   float(tolerance), bool(hold_com))
+        return np.column_stack([lx, lz, ly]), int(sweeps), float(worst)
     lx = np.ascontiguousarray(P[:, 0])
     lz = np.ascontiguousarray(P[:, 1])
     sweeps, worst = relax_all(lx, lz, d, mob, np.asarray(box, float), rp, int(max_iterations),

@@ -65,7 +65,8 @@ class KernelParams:
         size_v: vertical size ``size / aspect`` in d.
         amp: ``w`` at the centre (dimensionless).
         reach: ``(horizontal, vertical)`` cut-off half-axes in d.
-        V1, V2: the kernel's ``integral w`` and ``integral w**2`` in d**2.
+        V1, V2: the kernel's ``integral w`` and ``integral w**2`` in d**dims.
+        dims: 2, or 3 for a 3D kernel (horizontal size along ``x`` and ``y``).
     """
 
     shape: int
@@ -75,6 +76,7 @@ class KernelParams:
     reach: tuple[float, float]
     V1: float
     V2: float
+    dims: int = 2
 
 
 _SHAPE_CODES = {"uniform": K.SHAPE_UNIFORM, "gaussian": K.SHAPE_GAUSSIAN,
@@ -96,10 +98,9 @@ def kernel_params(kernel, cutoff: float = CUTOFF) -> KernelParams:
     makes the Monte Carlo 2-4 times slower for no measurable gain).
 
     Raises:
-        ValueError: for a 3D kernel or an unknown kernel class.
+        ValueError: for an unknown kernel class.
     """
-    if getattr(kernel, "dims", 2) != 2:
-        raise ValueError("kernel: the Monte Carlo is 2D only, got a 3D kernel")
+    dims = int(getattr(kernel, "dims", 2))
     name = type(kernel).__name__.lower()
     if name not in _SHAPE_CODES:
         name = str(getattr(kernel, "shape_name", name)).lower()
@@ -110,7 +111,7 @@ def kernel_params(kernel, cutoff: float = CUTOFF) -> KernelParams:
     size = float(getattr(kernel, "a_h", None) or getattr(kernel, {"uniform": "radius",
                  "gaussian": "sigma", "exponential": "length"}[name]))
     size_v = size / aspect
-    amp = float(np.asarray(kernel.evaluate(np.array([0.0]), np.array([0.0]))).ravel()[0])
+    amp = float(np.asarray(kernel.evaluate(*[np.array([0.0])] * dims)).ravel()[0])
     if code == K.SHAPE_UNIFORM:
         rho = 1.0
     elif code == K.SHAPE_GAUSSIAN:
@@ -118,11 +119,21 @@ def kernel_params(kernel, cutoff: float = CUTOFF) -> KernelParams:
     else:
         rho = -math.log(cutoff)
     return KernelParams(code, size, size_v, amp, (rho * size, rho * size_v),
-                        float(kernel.V1), float(kernel.V2))
+                        float(kernel.V1), float(kernel.V2), dims)
 
 
-def kernel_evaluate(kp: KernelParams, x, z) -> np.ndarray:
-    """The Monte Carlo's own (numba) evaluation of ``w`` at offsets ``(x, z)`` in d."""
+def kernel_evaluate(kp: KernelParams, x, z, *more) -> np.ndarray:
+    """The Monte Carlo's own (numba) evaluation of ``w`` at offsets ``(x, z)`` in d, or
+    at ``(x, y, z)`` (three arguments, in that order) for a 3D kernel."""
+    if kp.dims == 3:
+        from ._mc3d import kernel_eval3
+
+        if len(more) != 1:
+            raise TypeError("kernel_evaluate: a 3D kernel takes offsets (x, y, z)")
+        x, y, z = np.broadcast_arrays(*(np.asarray(v, float) for v in (x, z, more[0])))
+        out = kernel_eval3(kp.shape, *(np.ascontiguousarray(v).ravel() for v in (x, y, z)),
+                           kp.size, kp.size_v, kp.amp, kp.reach[0], kp.reach[1])
+        return out.reshape(x.shape)
     x, z = np.broadcast_arrays(np.asarray(x, float), np.asarray(z, float))
     out = K.kernel_eval(kp.shape, np.ascontiguousarray(x), np.ascontiguousarray(z),
                         kp.size, kp.size_v, kp.amp, kp.reach[0], kp.reach[1])
@@ -139,14 +150,16 @@ class MCResult:
     Attributes:
         grid, orifice, spots, kernel (:class:`KernelParams`), rule, gamma, step (Delta),
             steps ("gaussian"/"binary"), seed, t_end, dt (time per tick), n_ticks.
-        initial: ``(N, 2)`` initial particle positions ``(x, z)``; ``final``: final ones.
+        initial: ``(N, 2)`` initial particle positions ``(x, z)`` (3D: ``(N, 3)``,
+            ``(x, z, y)``: the depth last); ``final``: final ones.
         status: per particle 0 inside, 1 left through the orifice, 2 left through an
             open side. ``exit_x``, ``exit_t``: where and when it left (NaN if not).
         tracked: indices of tracked particles. ``times``: snapshot times;
-            ``positions``: ``(n_times, n_tracked, 2)``, NaN once a particle has left.
+            ``positions``: ``(n_times, n_tracked, 2)`` (3D: ``(.., 3)``), NaN once a
+            particle has left.
         levels: crossing heights; ``cross_x``/``cross_t``: ``(n_tracked, n_levels)`` x and
             time at which each tracked particle first fell through each level (NaN: not).
-        probe: ``(5, n_batch, nz, nx)`` probe sums (see ``_mc_kernels.advance``);
+        probe: ``(5, n_batch, nz, nx)`` probe sums (see ``_mc_kernels.advance``; None in 3D);
             ``rho_hist``: ``(n_batch, nz, nx)`` spot samples; ``batch_ticks``: ticks per batch.
         counters: injected spots, spot steps, particle updates, cell-list rebuilds.
         wall_time, cpu_time: wall-clock and CPU seconds spent in the numba loop.
@@ -215,7 +228,7 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
              particles: np.ndarray | None = None, tracked=None,
              t_end: float | None = None, n_spots: int | None = None, seed: int = 0,
              gamma: float = 0.0, step: float | None = None, steps: str = "gaussian",
-             probes: bool = True, batches: int = 20, records: int = 20,
+             probes: bool | None = None, batches: int = 20, records: int = 20,
              levels: np.ndarray | None = None, skin: float | None = None,
              cutoff: float = CUTOFF, progress: Callable[[float], None] | None = None,
              walls: str = "renormalise", relax: Relax | dict | None = None,
@@ -225,15 +238,20 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
     Args:
         grid: 2D :class:`~spotpde.grid.Grid`; its box is the silo, its cell centres are
             the probe points, its walls (``"reflecting"``/``"open"``) bound spots and
-            particles.
+            particles. A 3D grid (``dims = 3``, e.g. a thin slab with ``y_range`` a few
+            d deep) runs the 3D model (``_simulate3d``, docs/packing.md): spots walk in
+            ``x`` and ``y``, the side, front and back walls bound them, no probes.
         orifice: spot source on the floor (``rate`` = Q0 in spots per unit time,
             constant).
         spots: ``drift`` v_s (d per unit time), ``b`` and ``b_par`` (d), constants.
             ``b`` is the long-distance horizontal diffusion length, persistence included.
-        kernel: a ``spotpde.kernels`` kernel (Uniform, Gaussian, Exponential; 2D).
+        kernel: a ``spotpde.kernels`` kernel (Uniform, Gaussian, Exponential) of the
+            grid's ``dims``.
         rule: lam, where along the step the influence is evaluated (1/2 midpoint, 1 end).
         particles: ``(N, 2)`` initial ``(x, z)`` (see :func:`lattice`,
-            :func:`random_packing`, :func:`blob`); ``None`` for probes only.
+            :func:`random_packing`, :func:`blob`); ``None`` for probes only. 3D:
+            ``(N, 3)`` in columns ``(x, z, y)``, the depth last (:func:`dense_packing`
+            of a 3D grid); positions, snapshots and ``final`` keep that order.
         tracked: ``None`` (no trajectories), ``"all"``, or indices of particles whose
             positions are snapshot and whose level crossings are recorded.
         t_end: duration; or ``n_spots``: duration ``n_spots / Q0`` (expected spot count).
@@ -241,7 +259,8 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
         gamma: correlation coefficient of successive horizontal steps, ``0 <= gamma < 1``.
         step: vertical step Delta in d (default: a quarter of the kernel's vertical size).
         steps: ``"gaussian"`` steps ``sqrt(2 b0 Delta) xi`` or ``"binary"`` ``+-sqrt(2 b0 Delta)``.
-        probes: accumulate the probe fields and the spot density on the grid.
+        probes: accumulate the probe fields and the spot density on the grid (default:
+            yes in 2D; the 3D model has none, and refuses ``True``).
         batches: number of time batches for standard errors of probe fields.
         records: number of snapshots of tracked particles (evenly spaced, last at t_end).
         levels: heights at which first crossings are recorded (default ``grid.z``).
@@ -268,8 +287,12 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
         ValueError: invalid parameters (the message names the argument).
     """
     problems = []
-    if grid.dims != 2:
-        problems.append(f"grid: the Monte Carlo is 2D only, got dims = {grid.dims}")
+    if grid.dims == 2 and probes is None:
+        probes = True
+    if grid.dims == 3 and probes:
+        problems.append("probes: the 3D Monte Carlo has no probe fields; pass probes=False")
+    if getattr(kernel, "dims", 2) != grid.dims:
+        problems.append(f"kernel: a {getattr(kernel, 'dims', 2)}D kernel in a {grid.dims}D grid")
     v_s = _scalar("spots.drift", spots.drift)
     b = _scalar("spots.b", spots.b)
     b_par = _scalar("spots.b_par", spots.b_par)
@@ -317,6 +340,15 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
         K.PROFILE_UNIFORM if orifice.profile == "uniform" else K.PROFILE_GAUSSIAN)
     skin = 0.5 if skin is None else float(skin)
     cell = max(kp.reach[0], kp.reach[1], 0.25) + skin
+    if grid.dims == 3:
+        from ._simulate3d import run3d
+
+        return run3d(grid, orifice, spots, kp, rule=float(rule), gamma=float(gamma),
+                     step=step, steps=steps, seed=int(seed), t_end=t_end, dt=dt,
+                     n_ticks=n_ticks, Q0=Q0, b0=b0, b_par=b_par, profile=profile, skin=skin,
+                     cell=cell, particles=particles, tracked=tracked, records=records,
+                     levels=levels, progress=progress, walls=walls, relax=relax,
+                     diameters=diameters, relax_reach=_relax_reach(kp))
     ncx = max(1, int(math.ceil((x1 - x0) / cell)))
     ncz = max(1, int(math.ceil((z1 - z0) / cell)))
     batches = max(1, min(int(batches), n_ticks))
@@ -458,10 +490,12 @@ def from_case(case, *, particles="lattice", spacing: float = 1.0, **kwargs) -> M
     """Run the Monte Carlo with a :class:`spotpde.cases.Case`'s parameters.
 
     Args:
-        case: a loaded case (2D); its grid, orifice, spots, kernel and rule are used.
+        case: a loaded case (2D or 3D); its grid, orifice, spots, kernel and rule are used.
         particles: ``"lattice"`` (triangular lattice of ``spacing``), ``"random"``
             (:func:`random_packing`, phi 0.5), ``"tracer"`` (2000 particles from the
-            tracer blob, all tracked), ``None``, or an ``(N, 2)`` array.
+            tracer blob, all tracked), ``None``, or an ``(N, 2)`` array. 3D: a simple
+            cubic lattice, :func:`dense_packing` at phi 0.5, no ``"tracer"``; arrays
+            ``(N, 3)`` in columns ``(x, z, y)``.
         **kwargs: passed to :func:`simulate` (``t_end`` defaults to ``case.tracer.t_end``;
             for ``tracer.model = "void"`` the step defaults to 1 d, larger than the void's
             radius, so that a void displaces a given particle at most once).
@@ -471,6 +505,10 @@ def from_case(case, *, particles="lattice", spacing: float = 1.0, **kwargs) -> M
         raise ValueError("case: the discrete spot model runs in rectangular boxes; this "
                          "case is " + ("axisymmetric" if grid.axisymmetric else "a hopper")
                          + " (domain.coordinates / domain.hopper_angle)")
+    if grid.dims == 3 and isinstance(particles, str):
+        from ._simulate3d import case_particles3d
+
+        particles = case_particles3d(grid, particles, spacing, kwargs.get("seed", 0))
     if isinstance(particles, str):
         if particles == "lattice":
             particles = lattice(grid, spacing)
