@@ -3,10 +3,10 @@
 
 Exit status (docs/interface.md): 0 done; 2 invalid case, unreadable input or an output
 path that cannot or must not be written (one line per problem on standard error, no
-traceback, no output file); 1 numerical failure or a failed write (no output file); 130
-interrupted by Ctrl-C, 128 + the signal number for SIGTERM and SIGHUP (no output file, or
-a complete one: results are written to a temporary file in the target directory and
-then renamed). Output paths are checked before any computing (:mod:`spotpde.app._outputs`).
+traceback, no output file); 1 numerical failure, a failed write or memory exhausted (no
+output file); 130 interrupted by Ctrl-C, 128 + the signal number for SIGTERM and SIGHUP
+(no output file, or a complete one: results are written to a temporary file in the
+target directory and then renamed). Output paths are checked before any computing (:mod:`spotpde.app._outputs`).
 """
 
 from __future__ import annotations
@@ -283,9 +283,14 @@ def _sweep_command(args) -> int:
         if not args.quiet:
             _say(f"spotpde: sweep {done}/{total} members finished")
 
+    def validating(done: int, total: int) -> None:
+        if not args.quiet and total >= 100:     # about a second or more
+            _say(f"spotpde: sweep {done}/{total} members validated")
+
     t0 = time.monotonic()
     ds = sweep_case(case, settings, output, scheduler=args.scheduler,
-                    n_workers=args.workers, progress=progress)
+                    n_workers=args.workers, progress=progress,
+                    allow_many=args.allow_many, validating=validating)
     args.written = os.path.abspath(output)
     _say(f"spotpde: wrote {os.path.abspath(output)} ({time.monotonic() - t0:.1f} s)")
     failed = ds.attrs.get("failed_members", "")
@@ -387,7 +392,10 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--scheduler", metavar="ADDRESS",
                    help="a running Dask scheduler (default: an embedded LocalCluster)")
     w.add_argument("--workers", type=int, metavar="N",
-                   help="LocalCluster worker processes (default: the number of cores)")
+                   help="LocalCluster worker processes (default and at most: the cores; "
+                        "at most the members)")
+    w.add_argument("--allow-many", action="store_true",
+                   help="run a sweep of more than 10000 members")
     w.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     w.set_defaults(func=cmd_sweep)
     k = sub.add_parser("compare", help="spot-model mean flow against the Kinematic Model, "
@@ -469,6 +477,10 @@ def _dispatch(args) -> int:
         return EXIT_NUMERICAL
     except KeyboardInterrupt as exc:
         return _interrupted(args, exc)
+    except MemoryError as err:    # an allocation the estimate did not foresee
+        detail = " ".join(str(err).split()) or "an allocation failed"
+        _say(f"spotpde: out of memory, no result written: {detail}")
+        return EXIT_NUMERICAL
     except WriteError as err:     # disk full, file-size limit: nothing left behind
         _say(f"spotpde: {err}")
         return EXIT_NUMERICAL
