@@ -172,7 +172,8 @@ def cmd_run(args) -> int:
     with the documented status and one line. The progress starts with the spot density
     stage once the case is valid and the outputs writable: loading the solvers is its
     first part. The run-time estimate is made from the fields the run computes, before
-    the tracer starts and before any file is created.
+    the tracer starts and before any file is created; with transient spots, before the
+    spot density stage (:func:`~spotpde.app.estimate.transient_estimate`).
     """
     from ._localdask import deferred_signals
 
@@ -188,6 +189,8 @@ def cmd_run(args) -> int:
             fig = Path(args.plot) if args.plot else out.with_suffix(".png")
         _check_outputs([("output.path", out, None), ("--plot", fig, FIGURE_FORMATS)],
                        inputs=[args.case])
+    if case.spots.mode == "transient":     # before the spot density is time-stepped
+        _estimate(case, args.allow_long, args.quiet)
     progress = None if args.quiet else Progress()
     t0 = time.monotonic()
     warm = _warmup(case) if args.command_line else None
