@@ -6,8 +6,9 @@ complex zero-padded FFT arrays of the kernel convolution (16 bytes a cell), and 
 allocation that grows with a key rather than with the grid: the padding of open walls
 (``spots.b``), the passage quadrature (its wavenumber grid grows like ``spots.b /
 kernel.size``, :func:`passage_bytes`), the ``[pair]`` solver (:func:`pair_bytes`) and
-the random rate of ``orifice.noise`` (:func:`noise_bytes`). :func:`memory_problem` compares ``estimate + BASELINE_BYTES`` with
-``MEMORY_FRACTION * available_memory()`` and names the key to change. The public
+the random rate of ``orifice.noise`` (:func:`noise_bytes`). :func:`memory_problem`
+compares ``estimate + BASELINE_BYTES`` with ``MEMORY_FRACTION * available_memory()``
+and names the key to change. The public
 names are re-exported by :mod:`spotpde.cases` (the validation there reads
 ``spotpde.cases.available_memory``, so replacing that one function replaces the
 machine's memory).

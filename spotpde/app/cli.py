@@ -3,10 +3,10 @@
 
 Exit status (docs/interface.md): 0 done; 2 invalid case, unreadable input or an output
 path that cannot or must not be written (one line per problem on standard error, no
-traceback, no output file); 1 numerical failure, a failed write or memory exhausted (no
-output file); 130 interrupted by Ctrl-C, 128 + the signal number for SIGTERM and SIGHUP
-(no output file, or a complete one: results are written to a temporary file in the
-target directory and then renamed). Output paths are checked before any computing (:mod:`spotpde.app._outputs`).
+traceback, no output file); 1 numerical failure or a failed write (no output file); 130
+interrupted by Ctrl-C, 128 + the signal number for SIGTERM and SIGHUP (no output file, or
+a complete one: results are written to a temporary file in the target directory and
+then renamed). Output paths are checked before any computing (:mod:`spotpde.app._outputs`).
 """
 
 from __future__ import annotations
