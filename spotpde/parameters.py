@@ -26,9 +26,10 @@ TRACER_MODELS = ("spot", "void")
 #: ``(lo, hi]``, from just after the start of a spot step to its end point.
 RULE_RANGE = (0, 1)
 #: ``(lo, hi)``: a uniform kernel's influence w (``kernel.height``,
-#: ``spotpde.kernels.Uniform(height=)``) lies in ``(lo, hi]``: a spot moves a particle by
-#: at most its own step.
-HEIGHT_RANGE = (0, 1)
+#: ``spotpde.kernels.Uniform(height=)``) lies in ``[lo, hi]``: a spot moves a particle by
+#: at most its own step, and by enough that ``w**2`` (the diffusivity's factor) stays a
+#: normal floating-point number.
+HEIGHT_RANGE = (1e-12, 1.0)
 #: A uniform kernel given by its volume (``kernel.volume``) may imply ``w`` up to
 #: ``HEIGHT_RANGE[1] * (1 + VOLUME_ROUNDING)`` (a volume written to four digits), taken as
 #: ``w = 1``.

@@ -324,16 +324,17 @@ def test_a_grid_too_large_for_memory_is_refused_before_any_work(monkeypatch):
 
 
 def test_memory_estimate_counts_tracer_frames_and_3d():
-    base = cases.validate(small())
+    mean_field = {"diffusivity": "mean-field"}     # no passage quadrature (grid-sized peak)
+    base = cases.validate(small(kernel=mean_field))
     more = copy.deepcopy(base)
     more["tracer"]["frames"] = 200
     assert cases.estimate_bytes(more) > cases.estimate_bytes(base) + 8 * 16 * 16 * 190
-    three = cases.validate(small(domain={"dims": 3}))
+    three = cases.validate(small(domain={"dims": 3}, kernel=mean_field))
     assert cases.estimate_bytes(three) > 10 * cases.estimate_bytes(base)
     # domain.y absent is the domain.x extent; a slab a quarter as deep needs less
-    square = cases.validate(small(domain={"dims": 3, "y": [-4.0, 4.0]}))
+    square = cases.validate(small(domain={"dims": 3, "y": [-4.0, 4.0]}, kernel=mean_field))
     assert cases.estimate_bytes(square) == cases.estimate_bytes(three)
-    slab = cases.validate(small(domain={"dims": 3, "y": [-1.0, 1.0]}))
+    slab = cases.validate(small(domain={"dims": 3, "y": [-1.0, 1.0]}, kernel=mean_field))
     assert cases.estimate_bytes(slab) < 0.8 * cases.estimate_bytes(three)
     assert cases.available_memory() > 0
 

@@ -2,9 +2,13 @@
 
 A case is refused before any work when the arrays of its run would not fit:
 :func:`estimate_bytes` counts every grid array in float64 (8 bytes a cell) and the
-complex zero-padded FFT arrays of the kernel convolution (16 bytes a cell), and
-:func:`memory_problem` compares ``estimate + BASELINE_BYTES`` with
-``MEMORY_FRACTION * available_memory()`` and names the key to change. The public
+complex zero-padded FFT arrays of the kernel convolution (16 bytes a cell), and every
+allocation that grows with a key rather than with the grid: the padding of open walls
+(``spots.b``), the passage quadrature (its wavenumber grid grows like ``spots.b /
+kernel.size``, :func:`passage_bytes`), the ``[pair]`` solver (:func:`pair_bytes`) and
+the random rate of ``orifice.noise`` (:func:`noise_bytes`). :func:`memory_problem`
+compares ``estimate + BASELINE_BYTES`` with ``MEMORY_FRACTION * available_memory()``
+and names the key to change. The public
 names are re-exported by :mod:`spotpde.cases` (the validation there reads
 ``spotpde.cases.available_memory``, so replacing that one function replaces the
 machine's memory).
@@ -27,6 +31,9 @@ BASELINE_BYTES = 512 * 1024**2
 #: be built (the estimate otherwise asks the kernel class: ``kernel_halfwidths``); the
 #: smooth kernels are cut where ``w = 1e-14 w(0)``.
 _REACH = {"uniform": 1.0, "gaussian": 8.0, "exponential": 32.3}
+#: Peak bytes of the pair solver per cell of its annulus (the mesh, the generator and its
+#: LU factors, the stored snapshots: 920-1020 measured at 2e3-5e4 cells).
+PAIR_BYTES_PER_CELL = 1200.0
 
 
 def available_memory() -> int:
@@ -83,26 +90,100 @@ def kernel_halfwidths(data: Mapping) -> tuple[int, int]:
     stencil has ``2 m + 1`` cells along each axis (e.g. 65 for a Gaussian of sigma 1 at
     h = 0.25, 259 for an exponential kernel of decay length 1).
     """
-    from ..fields import kernels
-
-    d, k = data["domain"], data["kernel"]
-    volume = (k["height"] * _ellipsoid_measure(k["size"], k["aspect"], kernel_dims(d))
-              if "height" in k else k["volume"])
-    kern = kernels.from_spec(k["shape"], k["size"], volume, k["aspect"], kernel_dims(d))
-    m = kern.halfwidths(d["spacing"])
+    m = _kernel(data).halfwidths(data["domain"]["spacing"])
     return m[0], m[-1]
 
 
-def _estimate(data: Mapping, frames_in_memory: bool = True, *, pad: bool = True,
-              stencil: bool = True, frames: bool = True) -> int:
-    """:func:`estimate_bytes`; ``pad``/``stencil``/``frames`` False leave out the open-wall
-    padding, the kernel stencil (a 1-cell stencil) or the tracer frames (one frame), to
-    find which key makes a case too large."""
-    d, k = data["domain"], data["kernel"]
-    dims, h = d["dims"], d["spacing"]
+def _grid_cells(d: Mapping) -> tuple[float, float, float]:
+    """Cells ``(nz, ny, nx)`` of the domain (``ny = nx`` when absent)."""
+    h = d["spacing"]
     nx = (d["x"][1] - d["x"][0]) / h
     ny = (d["y"][1] - d["y"][0]) / h if "y" in d else nx
-    nz = (d["z"][1] - d["z"][0]) / h
+    return (d["z"][1] - d["z"][0]) / h, ny, nx
+
+
+def _largest(value) -> float:
+    """The largest value of a coefficient: a number, or a profile's ``values``."""
+    return float(max(value["values"]) if isinstance(value, Mapping) else value)
+
+
+def _kernel(data: Mapping, **changes):
+    """The case's kernel (``changes`` replace ``size``, ``aspect``)."""
+    from ..fields import kernels
+
+    d, k = data["domain"], {**data["kernel"], **changes}
+    dims = kernel_dims(d)
+    volume = (k["height"] * _ellipsoid_measure(k["size"], k["aspect"], dims)
+              if "height" in k else k["volume"])
+    return kernels.from_spec(k["shape"], k["size"], volume, k["aspect"], dims)
+
+
+def passage_bytes(data: Mapping, **changes) -> float:
+    """Peak bytes of the passage quadrature of a validated case (0 without one): with
+    ``kernel.diffusivity = "passage"`` and the spot model, at the largest ``spots.b`` and
+    ``spots.b_par`` (``changes``: ``b``, ``b_par``, ``size``, ``aspect`` replaced, to find
+    the key to blame)."""
+    t = data.get("tracer")
+    if data["kernel"]["diffusivity"] != "passage" or (t is not None and t["model"] == "void"):
+        return 0.0
+    from ..fields import _passage
+
+    s = data["spots"]
+    b = changes.pop("b", _largest(s["b"]))
+    b_par = changes.pop("b_par", _largest(s["b_par"]))
+    try:
+        return _passage.quadrature_bytes(_kernel(data, **changes), b, b_par)
+    except (ValueError, ArithmeticError):   # refused later, by cases._check_kernel
+        return 0.0
+
+
+def pair_bytes(data: Mapping) -> float:
+    """Peak bytes of the ``[pair]`` table's solver (0 without one): the annulus
+    ``contact <= r < separation`` in cells of ``pair.spacing`` (:data:`PAIR_BYTES_PER_CELL`
+    each), its ``pair.frames`` over the square around it, and the pair quadrature
+    (``kernel.diffusivity = "passage"``)."""
+    p = data.get("pair")
+    if p is None:
+        return 0.0
+    c, s = p["contact"], p["separation"]
+    h = p.get("spacing") or c / 16
+    box = 4.0 * (s / h + 1.0) ** 2
+    total = PAIR_BYTES_PER_CELL * math.pi * (s * s - c * c) / (h * h) + 8.0 * p["frames"] * box
+    if data["kernel"]["diffusivity"] == "passage":
+        from ..fields import _passage, _passage_grids
+        from ..fields.kernels import Uniform
+
+        t = data.get("tracer")
+        kern = (Uniform(radius=0.5, height=1.0) if t is not None and t["model"] == "void"
+                else _kernel(data))
+        b, b_par = _largest(data["spots"]["b"]), _largest(data["spots"]["b_par"])
+        # the tensor over the separations, then the one-particle tensor (one at a time)
+        total += max(_passage_grids.pair_bytes(kern, b, b_par, s),
+                     _passage.quadrature_bytes(kern, b, b_par))
+    return total
+
+
+def noise_bytes(data: Mapping) -> float:
+    """Bytes of ``orifice.noise``'s random process: 16 nodes per ``correlation_time`` up to
+    the last time the rate is asked for, held twice while it grows."""
+    noise = data["orifice"].get("noise")
+    if not noise:
+        return 0.0
+    t = data.get("tracer")
+    last = max(data["spots"]["t_end"], t["t_end"] if t is not None else 0.0)
+    return 16.0 * (16.0 * last / noise["correlation_time"] + 2.0)
+
+
+def _estimate(data: Mapping, frames_in_memory: bool = True, *, pad: bool = True,
+              stencil: bool = True, frames: bool = True, passage: bool = True,
+              pair: bool = True, noise: bool = True) -> int:
+    """:func:`estimate_bytes`; ``pad``/``stencil``/``frames`` False leave out the open-wall
+    padding, the kernel stencil (a 1-cell stencil) or the tracer frames (one frame),
+    ``passage``/``pair``/``noise`` the passage quadrature, the pair solver or the random
+    rate, to find which key makes a case too large."""
+    d, k = data["domain"], data["kernel"]
+    dims, h = d["dims"], d["spacing"]
+    nz, ny, nx = _grid_cells(d)
     if d["walls"] == "open" and pad:   # the spot density is solved on a padded, wider grid
         b = data["spots"]["b"]
         b = max(b["values"]) if isinstance(b, Mapping) else b
@@ -147,8 +228,12 @@ def _estimate(data: Mapping, frames_in_memory: bool = True, *, pad: bool = True,
     if data["spots"].get("rho_max") is not None:
         # interacting spots: space-time frames of rho_s and free_volume, solver stages
         n_tracer += 2 * (data["spots"].get("frames") or 101) + 8
-    total = 8.0 * cells * (n_fields + scratch + n_tracer)
-    total += 16.0 * padded * 6 + 8.0 * stencil * 2
+    arrays = 8.0 * cells * (n_fields + scratch + n_tracer)
+    total = arrays + 16.0 * padded * 6 + 8.0 * stencil * 2
+    # the quadratures run with the grid arrays alive, not with the FFT arrays
+    total = max(total, arrays + (passage_bytes(data) if passage else 0.0),
+                arrays + (pair_bytes(data) if pair else 0.0))
+    total += noise_bytes(data) if noise else 0.0
     return int(min(total, 1e30))
 
 
@@ -159,8 +244,12 @@ def memory_problem(data: Mapping, frames_in_memory: bool, have: int
     The run fits when ``estimate_bytes(data) + BASELINE_BYTES <= MEMORY_FRACTION * have``.
     Otherwise the key is ``domain.spacing`` (the grid itself is too large), or, when the
     bare grid fits, what is added to it: ``spots.b`` (the padding of open walls,
-    ``6 sqrt(b H)`` on each side), ``kernel.size``/``kernel.aspect`` (the kernel
-    stencil widening every FFT array) or ``tracer.frames`` (frames held in memory).
+    ``6 sqrt(b H)`` on each side), the key that most enlarges the passage quadrature
+    (``spots.b``, ``spots.b_par``, ``kernel.size`` or ``kernel.aspect``: its grid grows
+    like ``b / size``), ``pair.spacing`` (the pair solver's annulus),
+    ``orifice.noise.correlation_time`` (the random rate's nodes), ``kernel.size`` /
+    ``kernel.aspect`` (the kernel stencil widening every FFT array) or ``tracer.frames``
+    (frames held in memory).
 
     Args:
         data: a validated case mapping (tables and cross-key checks passed).
@@ -174,42 +263,77 @@ def memory_problem(data: Mapping, frames_in_memory: bool, have: int
     if need <= MEMORY_FRACTION * have:
         return None
     d = data["domain"]
-    nx = (d["x"][1] - d["x"][0]) / d["spacing"]
-    ny = (d["y"][1] - d["y"][0]) / d["spacing"] if "y" in d else nx
-    nz = (d["z"][1] - d["z"][0]) / d["spacing"]
+    nz, ny, nx = _grid_cells(d)
     cells = " x ".join(f"{n:,.0f}" for n in ([nz] + ([ny] if d["dims"] == 3 else []) + [nx]))
     snaps = data.get("tracer") is not None and data["spots"]["mode"] == "transient"
     limit = MEMORY_FRACTION * have - BASELINE_BYTES
-    key, value, advice = "domain.spacing", d["spacing"], (
-        "use a larger spacing, a smaller domain or fewer tracer.frames"
-        + (" or tracer.snapshots" if snaps else ""))
-    if _estimate(data, frames_in_memory, pad=False, stencil=False,
-                 frames=False) <= limit:
-        # the grid itself fits: blame what is added to it
-        k = data["kernel"]
-        if d["walls"] == "open" and _estimate(data, frames_in_memory, stencil=False,
-                                              frames=False) > limit:
-            key, value, advice = "spots.b", data["spots"]["b"], (
-                'with domain.walls = "open" the spot density is solved on a grid '
-                "widened by 6 sqrt(b H) on each side; use a smaller b or reflecting "
-                "walls")
-        elif _estimate(data, frames_in_memory, frames=False, pad=False) > limit:
-            mz, mh = kernel_halfwidths(data)
-            if k["aspect"] < 1 and mz > mh:
-                key, value = "kernel.aspect", k["aspect"]
-            else:
-                key, value = "kernel.size", k["size"]
-            advice = (f"the kernel stencil of {2 * mz + 1} x {2 * mh + 1} cells "
-                      "widens every FFT array; use a smaller kernel.size, an aspect "
-                      "nearer 1 or a larger domain.spacing")
-        elif data.get("tracer") is not None and frames_in_memory:
-            key, value = "tracer.frames", data["tracer"]["frames"]
-            advice = ("use fewer frames, or stream them to the result file "
-                      "(spotpde run, or spotpde.run(case, path=...))")
-    message = (f"the grid of {cells} cells (with kernel stencil and "
-               f"tracer frames) needs about {_gb(need)}, more than the "
-               f"{_gb(MEMORY_FRACTION * have)} this machine can spare; {advice}")
-    return key, message, value
+    spare = f"more than the {_gb(MEMORY_FRACTION * have)} this machine can spare"
+    parts = dict(pad=False, stencil=False, frames=False, passage=False, pair=False,
+                 noise=False)
+
+    def over(**part) -> bool:     # the bare grid with one part added does not fit
+        return _estimate(data, frames_in_memory, **{**parts, **part}) > limit
+
+    if over():
+        return "domain.spacing", (
+            f"the grid of {cells} cells (with kernel stencil and tracer frames) needs "
+            f"about {_gb(need)}, {spare}; use a larger spacing, a smaller domain or "
+            f"fewer tracer.frames" + (" or tracer.snapshots" if snaps else "")), d["spacing"]
+    k, s = data["kernel"], data["spots"]
+    if d["walls"] == "open" and over(pad=True):
+        return "spots.b", (
+            f"the grid of {cells} cells widened for open walls needs about {_gb(need)}, "
+            f'{spare}; with domain.walls = "open" the spot density is solved on a grid '
+            "widened by 6 sqrt(b H) on each side; use a smaller b or reflecting walls"
+            ), s["b"]
+    if over(passage=True):
+        key, value = _passage_key(data)
+        return key, (
+            f"the passage diffusivity's quadrature needs about {_gb(passage_bytes(data))}"
+            f", {spare}; its wavenumber grid grows like spots.b / kernel.size (here "
+            f"{_largest(s['b']):.3g} / {k['size']:.3g}); use a smaller {key} or "
+            f'kernel.diffusivity = "mean-field"'), value
+    if over(pair=True):
+        p = data["pair"]
+        return "pair.spacing", (
+            f"the pair solver needs about {_gb(pair_bytes(data))}, {spare}: "
+            f"{p['separation'] / (p.get('spacing') or p['contact'] / 16):.3g} cells across "
+            "pair.separation; use a larger pair.spacing or a smaller pair.separation"
+            ), p.get("spacing") or p["contact"] / 16
+    if over(noise=True):
+        n = data["orifice"]["noise"]
+        return "orifice.noise.correlation_time", (
+            f"the random rate needs about {_gb(noise_bytes(data))} (16 nodes "
+            f"per correlation_time up to t_end), {spare}; use a longer "
+            "correlation_time or a shorter t_end"), n["correlation_time"]
+    if over(stencil=True):
+        mz, mh = kernel_halfwidths(data)
+        key, value = (("kernel.aspect", k["aspect"]) if k["aspect"] < 1 and mz > mh else
+                      ("kernel.size", k["size"]))
+        return key, (
+            f"the grid of {cells} cells with the kernel stencil of {2 * mz + 1:.3g} x "
+            f"{2 * mh + 1:.3g} cells needs about {_gb(need)}, {spare}; the stencil widens "
+            "every FFT array; use a smaller kernel.size, an aspect nearer 1 or a larger "
+            "domain.spacing"), value
+    if data.get("tracer") is not None and frames_in_memory and over(frames=True):
+        return "tracer.frames", (
+            f"the grid of {cells} cells with its tracer frames needs about {_gb(need)}, "
+            f"{spare}; use fewer frames, or stream them to the result file (spotpde run, "
+            "or spotpde.run(case, path=...))"), data["tracer"]["frames"]
+    return "domain.spacing", (
+        f"the grid of {cells} cells (with kernel stencil and tracer frames) needs about "
+        f"{_gb(need)}, {spare}; use a larger spacing, a smaller domain or fewer "
+        "tracer.frames" + (" or tracer.snapshots" if snaps else "")), d["spacing"]
+
+
+def _passage_key(data: Mapping) -> tuple[str, object]:
+    """The key whose default value would most shrink the passage quadrature."""
+    s, k = data["spots"], data["kernel"]
+    options = [("spots.b", s["b"], {"b": 1.3}), ("spots.b_par", s["b_par"], {"b_par": 0.0}),
+               ("kernel.size", k["size"], {"size": max(k["size"], 1.0)}),
+               ("kernel.aspect", k["aspect"], {"aspect": 1.0})]
+    key, value, _ = min(options, key=lambda o: passage_bytes(data, **o[2]))
+    return key, value
 
 
 def _gb(n: float) -> str:

@@ -76,6 +76,13 @@ PAIR_START_KEYS = {"x": None, "z": None}
 #: Upper bounds that keep every derived number finite and every index an int.
 MAX_LENGTH = 1.0e6
 MAX_FRAMES = 10_000
+#: Ranges of the kernel's keys (d, d**dims, 1, 1): beyond them a kernel is absurd and its
+#: numbers leave floating point (``w**2`` of a height of 1e-320 is 0, the spot area of an
+#: aspect of 1e-300 overflows).
+KERNEL_SIZES = (1e-3, MAX_LENGTH)
+KERNEL_VOLUMES = (1e-12, MAX_LENGTH)
+KERNEL_ASPECTS = (1e-3, 1e3)
+KERNEL_HEIGHTS = HEIGHT_RANGE
 
 
 # -- value helpers ------------------------------------------------------------------
@@ -200,6 +207,14 @@ class _Validator:
             return None
         if limit is not None and abs(value) > limit:
             self.bad(key, f"must be at most {_show(limit)} in magnitude", value)
+            return None
+        return value
+
+    def span(self, key, value, lo, hi):
+        """A finite number in ``[lo, hi]``; out of range, one message with the whole range."""
+        value = self.number(key, value, limit=None)
+        if value is not None and not lo <= value <= hi:
+            self.bad(key, f"must be in [{lo:g}, {hi:g}]", value)
             return None
         return value
 
@@ -398,16 +413,15 @@ class _Validator:
     def _kernel(self, t):
         out = {
             "shape": self.choice("kernel.shape", t["shape"], KERNEL_SHAPES),
-            "size": self.number("kernel.size", t["size"], gt=0),
-            "volume": self.number("kernel.volume", t["volume"], gt=0),
-            "aspect": self.number("kernel.aspect", t["aspect"], gt=0, le=1000),
+            "size": self.span("kernel.size", t["size"], *KERNEL_SIZES),
+            "volume": self.span("kernel.volume", t["volume"], *KERNEL_VOLUMES),
+            "aspect": self.span("kernel.aspect", t["aspect"], *KERNEL_ASPECTS),
             "rule": self._rule(t["rule"]),
             "walls": self.choice("kernel.walls", t["walls"], KERNEL_WALLS),
             "diffusivity": self.choice("kernel.diffusivity", t["diffusivity"], DIFFUSIVITIES),
         }
         if t["height"] is not None:
-            out["height"] = self.number("kernel.height", t["height"], gt=HEIGHT_RANGE[0],
-                                        le=HEIGHT_RANGE[1])
+            out["height"] = self.span("kernel.height", t["height"], *KERNEL_HEIGHTS)
             del out["volume"]
             if "volume" in self.given.get("kernel", ()):
                 self.problems.append("kernel.volume: give either kernel.volume or "

@@ -172,7 +172,8 @@ def cmd_run(args) -> int:
     with the documented status and one line. The progress starts with the spot density
     stage once the case is valid and the outputs writable: loading the solvers is its
     first part. The run-time estimate is made from the fields the run computes, before
-    the tracer starts and before any file is created.
+    the tracer starts and before any file is created; with transient spots, before the
+    spot density stage (:func:`~spotpde.app.estimate.transient_estimate`).
     """
     from ._localdask import deferred_signals
 
@@ -188,6 +189,8 @@ def cmd_run(args) -> int:
             fig = Path(args.plot) if args.plot else out.with_suffix(".png")
         _check_outputs([("output.path", out, None), ("--plot", fig, FIGURE_FORMATS)],
                        inputs=[args.case])
+    if case.spots.mode == "transient":     # before the spot density is time-stepped
+        _estimate(case, args.allow_long, args.quiet)
     progress = None if args.quiet else Progress()
     t0 = time.monotonic()
     warm = _warmup(case) if args.command_line else None
@@ -286,9 +289,14 @@ def _sweep_command(args) -> int:
         if not args.quiet:
             _say(f"spotpde: sweep {done}/{total} members finished")
 
+    def validating(done: int, total: int) -> None:
+        if not args.quiet and total >= 100:     # about a second or more
+            _say(f"spotpde: sweep {done}/{total} members validated")
+
     t0 = time.monotonic()
     ds = sweep_case(case, settings, output, scheduler=args.scheduler,
-                    n_workers=args.workers, progress=progress)
+                    n_workers=args.workers, progress=progress,
+                    allow_many=args.allow_many, validating=validating)
     args.written = os.path.abspath(output)
     _say(f"spotpde: wrote {os.path.abspath(output)} ({time.monotonic() - t0:.1f} s)")
     failed = ds.attrs.get("failed_members", "")
@@ -394,7 +402,10 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--scheduler", metavar="ADDRESS",
                    help="a running Dask scheduler (default: an embedded LocalCluster)")
     w.add_argument("--workers", type=int, metavar="N",
-                   help="LocalCluster worker processes (default: the number of cores)")
+                   help="LocalCluster worker processes (default and at most: the cores; "
+                        "at most the members)")
+    w.add_argument("--allow-many", action="store_true",
+                   help="run a sweep of more than 10000 members")
     w.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     w.set_defaults(func=cmd_sweep)
     k = sub.add_parser("compare", help="spot-model mean flow against the Kinematic Model, "
@@ -478,6 +489,10 @@ def _dispatch(args) -> int:
         return EXIT_NUMERICAL
     except KeyboardInterrupt as exc:
         return _interrupted(args, exc)
+    except MemoryError as err:    # an allocation the estimate did not foresee
+        detail = " ".join(str(err).split()) or "an allocation failed"
+        _say(f"spotpde: out of memory, no result written: {detail}")
+        return EXIT_NUMERICAL
     except WriteError as err:     # disk full, file-size limit: nothing left behind
         _say(f"spotpde: {err}")
         return EXIT_NUMERICAL

@@ -27,6 +27,17 @@ a step costs the SSP-RK3 step of the grid, its implicit diffusion (three solves 
 limiter, measured as costly as the explicit scheme's two solves: the same rate) and the
 box's sub-steps. Axisymmetric and hopper grids always step explicitly.
 
+Transient spots (``spots.mode = "transient"``, :func:`transient_estimate`) are
+time-stepped before anything else: the spot density by BDF2 in ``max(20, ceil(T max v_s
+/ h))`` steps of two sparse triangular solves (:data:`SPOT_DENSITY_RATE`), or, for
+interacting spots, by SSP-RK2 at its explicit limit (:data:`TRAFFIC_RATE`), to
+``tracer.t_end`` (the snapshots) and to ``spots.t_end``. Their tracer steps in fields
+that change: its steps are those of the steady fields at the mean orifice rate (the
+flow fills the silo towards them; 1037 steps against 1020 estimated), each rebuilding
+the operator from interpolated fields at every stage (:data:`TRANSIENT_STEP_RATE`), and
+the fields of every snapshot are computed once (:data:`FIELDS_RATE`). ``spotpde run``
+makes this estimate before the spot density stage.
+
 A run estimated at more than :data:`MAX_SECONDS` (a day) is refused unless asked for
 (``spotpde run --allow-long``); ``tracer.t_end = inf`` needs no estimate (one solve).
 """
@@ -48,6 +59,16 @@ STEP_COST_3D = 2.0
 IMPLICIT_RATE = 8.0e6
 #: Longest run started without ``--allow-long``: one day.
 MAX_SECONDS = 86400.0
+#: Cell updates per second of the transient spot density: a BDF2 step (two triangular
+#: solves; 5.7e5-1.0e6 measured on 1.6e4 cells), an SSP-RK2 step of interacting spots
+#: (1.5e6 measured).
+SPOT_DENSITY_RATE = 5.0e5
+TRAFFIC_RATE = 1.0e6
+#: Cell updates per second of a tracer step in time-dependent fields: the operator is
+#: rebuilt from interpolated fields at every stage (6.8e5 measured on 4096 cells).
+TRANSIENT_STEP_RATE = 5.0e5
+#: Cells per second of the particle fields of one spot-density snapshot (2.9e5 measured).
+FIELDS_RATE = 2.0e5
 
 
 def tracer_steps(grid, fields, t_end: float, frames: int, *, limiter: str = "weno5",
@@ -132,10 +153,13 @@ def tracer_steps(grid, fields, t_end: float, frames: int, *, limiter: str = "wen
 
 def case_estimate(case) -> dict | None:
     """:func:`fields_estimate` for a case, computing its steady spot density and fields
-    (``spotpde check``; ``spotpde run`` estimates from the fields its run computes).
+    (``spotpde check``; ``spotpde run`` estimates from the fields its run computes), or
+    :func:`transient_estimate` for transient spots.
 
     Returns ``None`` where :func:`fields_estimate` does (before computing anything).
     """
+    if case.spots.mode == "transient":
+        return transient_estimate(case)
     if not _estimated(case):
         return None
     from ..density import spot_density
@@ -171,28 +195,125 @@ def _estimated(case) -> bool:
     return case.tracer_options.get("stepping", "explicit") not in ("imex", "implicit")
 
 
+def spot_density_runs(case) -> list[dict]:
+    """The time-stepped spot-density solves of a case (none for steady spots), before
+    computing anything: ``[{"key", "t_end", "steps", "seconds"}, ...]``, ``key`` the case
+    key that sets ``t_end`` (``tracer.t_end`` for the snapshots behind a tracer,
+    ``spots.t_end`` for the reported ``rho_s``)."""
+    s = case.spots
+    if s.mode != "transient":
+        return []
+    from ..density.spot_density import pad_cells
+
+    t = case.tracer
+    ends = [("tracer.t_end", t.t_end)] if t is not None else []
+    if s.rho_max is not None or t is None or t.t_end != s.t_end:
+        ends.append(("spots.t_end", s.t_end))
+    grid = case.grid
+    p = pad_cells(grid, s.b) if not grid.axisymmetric and grid.hopper is None else 0
+    cells = grid.size * math.prod((n + 2 * p) / n for n in grid.shape[1:])
+    v = float(np.max(s.drift))
+    h = grid.spacing
+    if s.rho_max is not None:      # the explicit bound-preserving step (density.traffic)
+        d_sum = float(np.max(s.b_par)) * v + (grid.dims - 1) * float(np.max(s.b)) * v
+        per, rate = 0.9 / (2.0 * v / h + 2.0 * d_sum / h**2), TRAFFIC_RATE
+    else:
+        per, rate = h / v, SPOT_DENSITY_RATE
+    out = []
+    for key, end in ends:
+        steps = max(1 if s.rho_max is not None else 20, math.ceil(end / per - 1e-9))
+        out.append({"key": key, "t_end": end, "steps": steps, "seconds": steps * cells / rate})
+    return out
+
+
+def transient_estimate(case) -> dict | None:
+    """Steps and wall time of a case with transient spots (module docstring): the
+    spot-density solves (:func:`spot_density_runs`) and a finite tracer's steps in the
+    fields that change, from the steady fields of the case at its mean orifice rate.
+
+    Returns:
+        dict: ``spot_density`` (:func:`spot_density_runs`), ``seconds`` (all of it), and
+        with a tracer :func:`tracer_steps`'s keys for its steps (``tracer_seconds``: its
+        share); ``None`` for steady spots.
+    """
+    if case.spots.mode != "transient":
+        return None
+    runs = spot_density_runs(case)
+    est = {"spot_density": runs, "steps": None, "seconds": sum(r["seconds"] for r in runs)}
+    t = case.tracer
+    if t is None:
+        return est
+    try:
+        steady = case_estimate(_steady_twin(case))
+    except Exception:    # noqa: BLE001 - the run itself reports what is wrong
+        steady = None
+    if steady is not None:
+        cells = steady["cells"]
+        per = cells / TRANSIENT_STEP_RATE + (cells / IMPLICIT_RATE if steady["implicit"]
+                                             else 0.0)
+        snaps = len(case.snapshot_times())
+        tracer = steady["steps"] * per + snaps * cells / FIELDS_RATE
+        est.update({**steady, "tracer_seconds": tracer, "seconds": est["seconds"] + tracer})
+    return est
+
+
+def _steady_twin(case):
+    """The case with steady spots at its mean orifice rate over ``[0, tracer.t_end]`` (no
+    noise, no interaction): the fields a transient flow fills towards."""
+    from .cases import load_case
+
+    data = {name: dict(table) for name, table in case.data.items()}
+    rate = data["orifice"]["rate"]
+    if isinstance(rate, dict):
+        times = np.linspace(0.0, data["tracer"]["t_end"], 1001)
+        rate = float(np.mean(np.interp(times, rate["times"], rate["values"])))
+    data["orifice"].update(rate=max(rate, 1e-300))
+    data["orifice"].pop("noise", None)
+    data["spots"].update(mode="steady", t_end=0.0)
+    for key in ("rho_max", "flux", "diffusion_scaling", "frames"):
+        data["spots"].pop(key, None)
+    data["tracer"]["snapshots"] = "auto"
+    data.pop("pair", None)
+    return load_case(data)
+
+
 def describe(est: dict) -> str:
     """One line: steps, time step and estimated wall time."""
-    how = (f"multirate, split {est['split']:g}" if est.get("stepping") == "multirate" else
-           f"{'implicit' if est['implicit'] else 'explicit'} diffusion")
-    return (f"tracer: {est['steps']:.3g} steps of dt = {est['dt']:.3g} ({how}), about "
-            f"{_duration(est['seconds'])} on this machine")
+    runs = est.get("spot_density") or []
+    parts = [f"spot density to {r['key']} = {r['t_end']:.3g}: {r['steps']:.3g} steps"
+             for r in runs]
+    if est.get("steps") is not None:
+        how = (f"multirate, split {est['split']:g}" if est.get("stepping") == "multirate"
+               else f"{'implicit' if est['implicit'] else 'explicit'} diffusion")
+        parts.append(f"tracer: {est['steps']:.3g} steps of dt = {est['dt']:.3g} ({how})")
+    return f"{'; '.join(parts)}, about {_duration(est['seconds'])} on this machine"
 
 
 def refuse_if_long(case, est: dict | None, allow_long: bool = False) -> None:
-    """Raise :class:`CaseError` (one line naming ``tracer.t_end`` or ``tracer.cfl``) when
-    the run is estimated at more than :data:`MAX_SECONDS` and ``allow_long`` is false."""
+    """Raise :class:`CaseError` (one line naming ``tracer.t_end``, ``tracer.cfl`` or
+    ``spots.t_end``) when the run is estimated at more than :data:`MAX_SECONDS` and
+    ``allow_long`` is false."""
     if est is None or allow_long or est["seconds"] <= MAX_SECONDS:
         return
+    runs = est.get("spot_density") or []
+    if runs and (est.get("steps") is None or
+                 max(r["seconds"] for r in runs) >= est.get("tracer_seconds", 0.0)):
+        r = max(runs, key=lambda r: r["seconds"])
+        raise CaseError(f"{r['key']}: the run would take about {_duration(est['seconds'])} "
+                        f"(the transient spot density: {r['steps']:.3g} steps to "
+                        f"{r['key']} = {r['t_end']:.3g}), more than a day; shorten "
+                        f"{r['key']}, use a larger domain.spacing, or pass --allow-long, "
+                        f"got {r['t_end']!r}")
     cfl = case.tracer_options.get("cfl", 0.9)
     # blame the cfl when the default would have made the run acceptable
     key, value = ("tracer.cfl", cfl) if est["seconds"] * cfl / 0.9 <= MAX_SECONDS else \
         ("tracer.t_end", case.tracer.t_end)
+    faster = ("" if case.spots.mode == "transient" else
+              "set tracer.t_end = inf for the geometrical propagator (one solve), "
+              "tracer.stepping = \"multirate\" or \"implicit\" for long runs, ")
     raise CaseError(f"{key}: the run would take about {_duration(est['seconds'])} "
                     f"({est['steps']:.3g} steps of dt = {est['dt']:.3g}), more than a day; "
-                    f"shorten tracer.t_end, set tracer.t_end = inf for the geometrical "
-                    f"propagator (one solve), tracer.stepping = \"multirate\" or "
-                    f"\"implicit\" for long runs, or pass --allow-long, got {value!r}")
+                    f"shorten tracer.t_end, {faster}or pass --allow-long, got {value!r}")
 
 
 def _duration(seconds: float) -> str:

@@ -291,8 +291,9 @@ class SnapshotFields:
     ``(1 - s) F(rho_j+) + s F(rho_{j+1}+)``, ``s = (t - t_j) / (t_{j+1} - t_j)`` (linear
     in time; ``F`` the particle fields of one spot density, ``rho+`` its positive part),
     constant beyond the last snapshot. The fields of a snapshot are computed when first
-    needed and three are kept, dropping the earliest (the tracer asks at its stage times:
-    they go back by at most a step, so at most two snapshots are in use).
+    needed and three are kept, dropping the one farthest in time from the one asked for
+    (the tracer asks at its stage times, which go back by at most a step, and once at
+    ``t_end``: so at most three snapshots are in use).
 
     Args:
         times: sorted snapshot times (case time unit).
@@ -312,8 +313,8 @@ class SnapshotFields:
             r = np.asarray(self.rho[j], dtype=float)
             _check_finite(f"rho_s(t={self.times[j]:g})", r)
             f = self.fields_of(np.maximum(r, 0.0))     # positive part: see _run
-            if len(self._cache) >= 3:
-                self._cache.pop(min(self._cache))
+            if len(self._cache) >= 3:   # the farthest (not the earliest: the solver's
+                self._cache.pop(max(self._cache, key=lambda k: abs(k - j)))   # t_end probe)
             self._cache[j] = f
         return f
 

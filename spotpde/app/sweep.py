@@ -16,7 +16,7 @@ in the order given, named by the key with its dots replaced by underscores
 coordinate's ``case_key`` attribute keeps the dotted key). A member file that cannot be
 read (a run killed while the file was copied, a truncated file) is removed and the
 member run again. A scheduler address is checked before use: it must be a Dask address
-(``tcp://host:port`` or ``host:port``), answer within :data:`CONNECT_TIMEOUT` seconds,
+(``tcp://host:port`` or ``host:port``), answer within :func:`connect_timeout` seconds,
 and not speak first (a service that sends a banner is not a Dask scheduler). Per-member
 numbers that are global attributes of a single run (``V1``, ``V2``, ``rule``) become
 variables over the swept dimensions. A member that failed is not dropped: its fields
@@ -35,6 +35,7 @@ import contextlib
 import copy
 import hashlib
 import itertools
+import math
 import os
 import tomllib
 from collections.abc import Mapping, Sequence
@@ -50,8 +51,13 @@ from ..errors import CaseError
 
 #: Keys that change the grid cannot be swept into one Dataset.
 FIXED_KEYS = ("domain.dims", "domain.x", "domain.z", "domain.spacing", "output.path")
-#: Seconds allowed to connect to a user's scheduler (``$SPOTPDE_CONNECT_TIMEOUT``).
-CONNECT_TIMEOUT = float(os.environ.get("SPOTPDE_CONNECT_TIMEOUT", "10") or 10)
+#: Seconds allowed to connect to a user's scheduler, unless ``$SPOTPDE_CONNECT_TIMEOUT``
+#: says otherwise (read when connecting: :func:`connect_timeout`), and its largest value.
+CONNECT_TIMEOUT = 10.0
+MAX_CONNECT_TIMEOUT = 3600.0
+#: Most members a sweep runs without ``allow_many`` (``spotpde sweep --allow-many``):
+#: every member is a whole run and its validation alone takes milliseconds.
+MAX_MEMBERS = 10_000
 #: Global attributes of a single run that become variables over the swept dimensions.
 MEMBER_NUMBERS = {"V1": ("d{dims}", "first interaction volume: integral of w"),
                   "V2": ("d{dims}", "second interaction volume: integral of w**2"),
@@ -126,12 +132,31 @@ def _check_settings(settings: Mapping) -> None:
             raise ValueError(f"{name}: has no values; give at least one")
 
 
-def members(case: Case, settings: Mapping[str, Sequence]) -> list[tuple[tuple, Case]]:
+def count_members(settings: Mapping[str, Sequence], allow_many: bool = False) -> int:
+    """The number of members of a sweep (the product of the numbers of values).
+
+    Raises:
+        spotpde.CaseError: more than :data:`MAX_MEMBERS` members and not ``allow_many``.
+    """
+    counts = [len(v) for v in settings.values()]
+    total = math.prod(counts)
+    if total > MAX_MEMBERS and not allow_many:
+        raise CaseError(f"--set: the sweep has {total:,} members ("
+                        f"{' x '.join(map(str, counts))} values), more than {MAX_MEMBERS:,}; "
+                        "sweep fewer values, or pass --allow-many (Python: allow_many=True)")
+    return total
+
+
+def members(case: Case, settings: Mapping[str, Sequence], *, allow_many: bool = False,
+            progress: Callable[[int, int], None] | None = None) -> list[tuple[tuple, Case]]:
     """Every combination of the swept values as a validated case.
 
     Args:
         case: the base case.
         settings: values by dotted key.
+        allow_many: validate more than :data:`MAX_MEMBERS` members.
+        progress: ``progress(validated, total)``, called before the first member, at
+            every tenth of them and after the last.
 
     Returns:
         ``[(values, member_case), ...]`` in row-major order of the swept keys.
@@ -139,14 +164,18 @@ def members(case: Case, settings: Mapping[str, Sequence]) -> list[tuple[tuple, C
     Raises:
         ValueError, TypeError: ``settings[KEY]`` with no values, not a list, or a key
             that cannot be swept.
-        spotpde.CaseError: every problem of every invalid member, each line naming the
-            key and the member it belongs to.
+        spotpde.CaseError: too many members (:func:`count_members`), or every problem
+            of every invalid member, each line naming the key and the member it belongs to.
     """
     if not settings:
         raise CaseError("--set: give at least one KEY=V1,V2,... to sweep")
     _check_settings(settings)
+    total = count_members(settings, allow_many)
+    every = max(1, -(-total // 10))
+    if progress is not None:
+        progress(0, total)
     out, problems = [], []
-    for values in itertools.product(*settings.values()):
+    for done, values in enumerate(itertools.product(*settings.values()), 1):
         data = copy.deepcopy(case.data)
         label = _label(settings, values)
         try:
@@ -155,6 +184,8 @@ def members(case: Case, settings: Mapping[str, Sequence]) -> list[tuple[tuple, C
             out.append((values, load_case(data)))
         except CaseError as err:
             problems.extend(f"{line} (sweep member {label})" for line in err.problems)
+        if progress is not None and (done % every == 0 or done == total):
+            progress(done, total)
     if problems:
         raise CaseError(list(dict.fromkeys(problems)))
     return out
@@ -235,6 +266,8 @@ def sweep_case(
     scheduler: str | Any | None = None,
     n_workers: int | None = None,
     progress: Callable[[int, int], None] | None = None,
+    allow_many: bool = False,
+    validating: Callable[[int, int], None] | None = None,
 ) -> xr.Dataset:
     """Run a parameter sweep and combine the members into one Dataset.
 
@@ -246,9 +279,11 @@ def sweep_case(
             ``<output>.members/``. ``None``: the base case's ``output.path``.
         scheduler: address of a running Dask scheduler, or a ``distributed.Client``;
             ``None`` starts an embedded ``LocalCluster``.
-        n_workers: LocalCluster worker processes (default: the number of cores, at most
-            the number of members still to run).
+        n_workers: LocalCluster worker processes (default: the number of cores); never
+            more than the cores this process may use or the members still to run.
         progress: ``progress(done, total)`` called as members finish.
+        allow_many: run more than :data:`MAX_MEMBERS` members.
+        validating: ``validating(validated, total)`` while the members are validated.
 
     Returns:
         The combined Dataset (also written to ``output``).
@@ -256,7 +291,8 @@ def sweep_case(
     Raises:
         TypeError, ValueError: ``case`` or ``settings`` of the wrong type or empty
             (named), before anything is written.
-        spotpde.CaseError: invalid settings or an invalid member (before any work).
+        spotpde.CaseError: invalid settings, too many members or an invalid member (before
+            any work).
     """
     from .io import read_netcdf, write_netcdf
 
@@ -278,7 +314,7 @@ def sweep_case(
             raise TypeError("settings: a list of \"KEY=V1,V2\" strings must hold strings "
                             "only")
         settings = parse_settings(settings)
-    todo_members = members(case, settings)
+    todo_members = members(case, settings, allow_many=allow_many, progress=validating)
     output = Path(os.path.abspath(output if output is not None else case.output_path))
     if not output.parent.is_dir():
         raise CaseError(f"output.path: the directory {output.parent} does not exist")
@@ -359,7 +395,7 @@ def _dask_client(scheduler, n_workers: int | None, n_tasks: int, directory: Path
             if client is not scheduler:
                 client.close()
         return
-    local = LocalDask(n_workers or min(os.cpu_count() or 1, n_tasks))
+    local = LocalDask(worker_count(n_workers, n_tasks))
     interrupted = False
     try:
         yield local.start()
@@ -375,6 +411,39 @@ def _dask_client(scheduler, n_workers: int | None, n_tasks: int, directory: Path
             except KeyboardInterrupt:
                 local.abort(directory)
                 raise
+
+
+def worker_count(n_workers: int | None, n_tasks: int) -> int:
+    """Worker processes of an embedded cluster: ``n_workers`` (default: the cores), at
+    most the cores this process may use and the members to run, at least 1 (a worker
+    beyond either only costs memory and start-up time)."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # pragma: no cover - non-Linux
+        cores = os.cpu_count() or 1
+    return max(1, min(n_workers or cores, cores, n_tasks))
+
+
+def connect_timeout() -> float:
+    """Seconds to connect to a scheduler: ``$SPOTPDE_CONNECT_TIMEOUT`` if set, else
+    :data:`CONNECT_TIMEOUT`.
+
+    Raises:
+        spotpde.CaseError: the variable is not a number of seconds in
+            ``(0, MAX_CONNECT_TIMEOUT]`` (one line naming it).
+    """
+    text = os.environ.get("SPOTPDE_CONNECT_TIMEOUT", "").strip()
+    if not text:
+        return CONNECT_TIMEOUT
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not 0.0 < value <= MAX_CONNECT_TIMEOUT:
+        shown = text if len(text) <= 40 else text[:40] + "..."
+        raise CaseError(f"SPOTPDE_CONNECT_TIMEOUT: must be a number of seconds in (0, "
+                        f"{MAX_CONNECT_TIMEOUT:g}], got {shown!r}")
+    return value
 
 
 def _handshake(address: str, timeout: float) -> None:
@@ -417,9 +486,11 @@ def connect(address: str, timeout: float | None = None):
 
     Args:
         address: ``tcp://host:port``, ``tls://host:port`` or ``host:port``.
-        timeout: seconds to connect (default :data:`CONNECT_TIMEOUT`).
+        timeout: seconds to connect, in ``(0, MAX_CONNECT_TIMEOUT]`` (default
+            :func:`connect_timeout`).
 
     Raises:
+        ValueError: ``timeout`` out of range.
         spotpde.CaseError: ``--scheduler: ...`` for a malformed address, nothing
             listening, no answer within ``timeout``, a service that is not a Dask
             scheduler (it sends a banner before being asked), or a failed handshake.
@@ -428,7 +499,12 @@ def connect(address: str, timeout: float | None = None):
 
     from distributed import Client
 
-    timeout = CONNECT_TIMEOUT if timeout is None else float(timeout)
+    if timeout is None:
+        timeout = connect_timeout()
+    elif not (isinstance(timeout, (int, float)) and 0 < timeout <= MAX_CONNECT_TIMEOUT):
+        raise ValueError(f"timeout: must be a number of seconds in (0, "
+                         f"{MAX_CONNECT_TIMEOUT:g}], got {timeout!r}")
+    timeout = float(timeout)
     scheme, sep, rest = address.strip().rpartition("://")
     host, colon, port = rest.rpartition(":")
     host = host.strip("[]")

@@ -46,13 +46,12 @@ from scipy.interpolate import BarycentricInterpolator
 from ._common import (_COMPONENTS, _as_point, _Convolutions, _is_zero, divergence,
                       spot_diffusivity)
 
+from ._passage_grids import _quadrature_grid, _shape
+from . import _passage_grids as _grids
+
 __all__ = ["length_tensor", "effective_spot_length", "source_tensor", "keep_flux_velocity",
            "add_pair_correction", "proportional", "keys"]
 
-#: Real-space extent of the kernel in units of its scale length (support / cut-off).
-_EXTENT = {"uniform": 1.0, "gaussian": 7.0, "exponential": 14.0}
-#: Grid spacing in units of the kernel scale length (k_max = pi / h).
-_H = {"uniform": 1.0 / 24.0, "gaussian": 1.0 / 6.0, "exponential": 1.0 / 8.0}
 _DIFFUSIVITIES = ("passage", "mean-field")
 #: One-particle tensors already computed (the fields of transient runs ask again and again).
 _CACHE: dict = {}
@@ -68,6 +67,10 @@ def _check(kernel, b, b_par, rule, diffusivity):
     if dims not in (2, 3) or not hasattr(kernel, "fourier"):
         raise TypeError(f"kernel: need a spotpde.kernels kernel (Uniform, Gaussian, "
                         f"Exponential), got {kernel!r}")
+    v1, v2 = float(kernel.V1), float(kernel.V2)
+    if not (0.0 < v1 < math.inf and 0.0 < v2 < math.inf):   # 1e-320 underflows in w**2
+        raise ValueError(f"kernel: its volumes V1 = {v1:.3g} and V2 = {v2:.3g} must be "
+                         "finite and > 0 (the amplitude is too small or too large)")
     try:
         b, b_par, lam = float(b), float(b_par), float(rule)
     except (TypeError, ValueError):
@@ -81,11 +84,6 @@ def _check(kernel, b, b_par, rule, diffusivity):
     if diffusivity not in _DIFFUSIVITIES:
         raise ValueError(f"diffusivity: must be one of {list(_DIFFUSIVITIES)}, got {diffusivity!r}")
     return dims, b, b_par, lam
-
-
-def _shape(kernel) -> str:
-    name = getattr(kernel, "shape_name", "") or type(kernel).__name__.lower()
-    return name if name in _EXTENT else "exponential"
 
 
 # -- the integrand ---------------------------------------------------------------------------
@@ -169,23 +167,21 @@ def _tail(w2, M, shell, missing):
 
 # -- one particle ------------------------------------------------------------------------------
 
+def quadrature_bytes(kernel, b, b_par=0.0) -> float:
+    """Peak memory in bytes (a float) of :func:`length_tensor` for one particle, before
+    computing it: its ``k`` grid grows like ``b / size`` (the range resolves the kernel,
+    the spacing the spread ``sqrt(b size)``), twice as fine each way for a 2D uniform
+    kernel. ``b``, ``b_par`` in d; raises as :func:`length_tensor`."""
+    dims, b, b_par, _ = _check(kernel, b, b_par, 0.5, "passage")
+    kscale = 2.0 if _shape(kernel) == "uniform" and dims == 2 else 1.0
+    nz, _, _, nh, _, _ = _quadrature_grid(kernel, dims, b, b_par, kscale=kscale)
+    return float(_grids.BYTES_PER_NODE) * (2.0 * nz + 1.0) * (nh + 1.0)
+
+
 def _single(kernel, dims, b, b_par, lam, scale=1.0, kscale=1.0):
     """``b_p_ij`` for one particle: ``(1/2V1) int |w^|^2 M_ij`` (dict of floats)."""
-    shape = _shape(kernel)
-    ah, az = kernel.a_h, kernel.a_h / kernel.aspect
-    h = _H[shape] / kscale
-    ext = _EXTENT[shape]
-    # k_perp: half line (2D: even integrand, 3D: radial), trapezoid; k_z: symmetric nodes
-    kmax_h, kmax_z = math.pi / (h * ah), math.pi / (h * az)
-    spread = math.sqrt(4.0 * b * ext * az) + math.sqrt(2.0 * b_par * ext * az)
-    Lz = 8.0 * (2.0 * ext * az + spread + 2.0 * b_par) * scale
-    dkz = 2.0 * math.pi / Lz
-    nz = int(math.ceil(kmax_z / dkz))
+    nz, dkz, kmax_z, nh, dkh, kmax_h = _quadrature_grid(kernel, dims, b, b_par, scale, kscale)
     kz = (np.arange(-nz, nz + 1) * dkz)[:, None]
-    dkh = 2.0 * math.pi / (4.0 * (2.0 * ext * ah + spread)) / scale
-    if dims == 3:  # the radial trapezoid is second order at k_perp = 0
-        dkh = min(dkh, 0.05 / ah / scale)
-    nh = int(math.ceil(kmax_h / dkh))
     kp = (np.arange(nh + 1) * dkh)[None, :]
     trap = np.ones(nh + 1)
     trap[0] = 0.5
@@ -238,21 +234,8 @@ def _pairs(kernel, dims, b, b_par, lam, separation):
         raise ValueError("separation: the arrays do not broadcast to one shape")
     if not all(np.all(np.isfinite(s)) for s in seps):
         raise ValueError("separation: contains NaN or infinite values")
-    shape = _shape(kernel)
-    ah, az = kernel.a_h, kernel.a_h / kernel.aspect
-    ext = _EXTENT[shape]
-    spread = math.sqrt(4.0 * b * ext * az) + math.sqrt(2.0 * b_par * ext * az)
     far = [float(np.max(np.abs(s))) if s.size else 0.0 for s in seps]
-    h = _H[shape] if dims == 2 else 2.0 * _H[shape]
-    hs = [h * ah] * (dims - 1) + [h * az]
-    L = [max(4.0 * (2.0 * ext * a + spread) + 2.0 * f, 16.0 * a)
-         for a, f in zip([ah] * (dims - 1) + [az], far)]
-    if dims == 3:  # bound the 3D grid (128^3 nodes): coarser spacing, same box
-        hs = [max(hi, Li / 128.0) for Li, hi in zip(L, hs)]
-    while math.prod(Li / hi for Li, hi in zip(L, hs)) > 4.2e6:  # very anisotropic kernels
-        a = int(np.argmax([Li / hi for Li, hi in zip(L, hs)]))
-        hs[a] *= 1.25
-    n = [scipy.fft.next_fast_len(int(math.ceil(Li / hi))) for Li, hi in zip(L, hs)]
+    n, hs = _grids.pair_grid(kernel, dims, b, b_par, far)
     L = [m * hi for m, hi in zip(n, hs)]
     ks = [2.0 * math.pi * scipy.fft.fftfreq(m, hi) for m, hi in zip(n, hs)]
     # arrays in order (z, [y,] x): k_z first so that _weights' columns run along axis 0
@@ -352,7 +335,13 @@ def effective_spot_length(kernel, b, b_par=0.0, rule=0.5) -> dict:
 
     Returns:
         ``{"xx", "zz"[, "yy"]}`` in d.
+
+    Raises:
+        ValueError: ``kernel`` with ``V1`` or ``V2`` zero or not finite (an amplitude
+            such as 1e-320 whose square underflows), or ``b``, ``b_par``, ``rule`` out of
+            range; TypeError: not a kernel.
     """
+    _check(kernel, b, b_par, rule, "passage")
     # b_eff depends on the kernel's shape only (b_p scales like V2/V1 at a fixed shape):
     # the key leaves out the amplitude, so a change of kernel.height or volume is free
     key = (type(kernel).__name__, kernel.dims, float(kernel.a_h), float(kernel.aspect),

@@ -342,7 +342,7 @@ class Uniform(Kernel):
 
     Args:
         radius: horizontal radius R in d.
-        height: w inside the spot (dimensionless, e.g. 0.0024), in (0, 1] as
+        height: w inside the spot (dimensionless, e.g. 0.0024), in [1e-12, 1] as
             ``kernel.height`` (``spotpde.parameters.HEIGHT_RANGE``): a spot moves a
             particle by at most its own step.
         dims: 2 or 3.
@@ -360,8 +360,8 @@ class Uniform(Kernel):
         self.dims = _check_dims(dims)
         self.a_h = _positive("radius", radius)
         self.amplitude = _positive("height", height)
-        if not self.amplitude <= HEIGHT_RANGE[1]:
-            raise ValueError(f"height must be in ({HEIGHT_RANGE[0]:g}, {HEIGHT_RANGE[1]:g}] "
+        if not HEIGHT_RANGE[0] <= self.amplitude <= HEIGHT_RANGE[1]:
+            raise ValueError(f"height must be in [{HEIGHT_RANGE[0]:g}, {HEIGHT_RANGE[1]:g}] "
                              "(a spot moves a particle by at most its own step), "
                              f"got {height!r}")
         self.aspect = _positive("aspect", aspect)
