@@ -13,7 +13,7 @@ import pytest
 import tomli_w
 
 import spotpde
-from spotpde import montecarlo as mc, observables as O, tracks as T
+from spotpde import montecarlo as mc, tracks as T
 
 TRUTH = {"domain": {"dims": 2, "x": [-8.0, 8.0], "z": [0.0, 24.0], "spacing": 0.5},
          "orifice": {"x": 0.0, "width": 3.0, "rate": 16.0}, "spots": {"b": 1.3},

@@ -14,7 +14,6 @@ import sys
 
 import numpy as np
 import pytest
-import xarray as xr
 
 import spotpde
 from spotpde.app import pipeline

@@ -5,7 +5,6 @@ closed-form Kinematic Model."""
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import pytest

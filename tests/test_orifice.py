@@ -4,7 +4,6 @@ import numpy as np
 import pytest
 from scipy.special import erf
 
-from spotpde.errors import CaseError
 from spotpde.grid import Grid
 from spotpde.density.orifice import cosine_coefficients, rate_from_table, source_profile
 from spotpde.parameters import Orifice

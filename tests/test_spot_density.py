@@ -7,7 +7,6 @@ from scipy.special import erf, k0
 
 from spotpde.density import _elliptic, _marching, _transient
 from spotpde.density import spot_density as sd
-from spotpde.errors import CaseError
 from spotpde.grid import Grid
 from spotpde.density.kinematic import point_source
 from spotpde.density.orifice import rate_from_table, source_profile

@@ -17,7 +17,6 @@ import pytest
 from spotpde import tracer
 from spotpde.grid import Grid
 from spotpde.tracer import _advection, _face_values
-from spotpde.tracer import _fp_kernels as K
 from spotpde.tracer._operator import _Operator, _rhs, _Workspace
 
 

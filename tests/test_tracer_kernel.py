@@ -17,7 +17,6 @@ import numba
 import numpy as np
 import pytest
 
-from spotpde import tracer
 from spotpde.tracer import _solve
 from spotpde.tracer._advection import LIMITERS
 from spotpde.grid import Grid

@@ -294,8 +294,6 @@ def sweep_case(
         spotpde.CaseError: invalid settings, too many members or an invalid member (before
             any work).
     """
-    from .io import read_netcdf, write_netcdf
-
     if not isinstance(case, (Case, str, os.PathLike, Mapping)):
         raise TypeError("case: must be a Case, a case file name, TOML text or a mapping, "
                         f"got {type(case).__name__}")

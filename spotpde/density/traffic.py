@@ -32,13 +32,12 @@ zero padding), dimensionless; ``-> V1 rho_s`` where ``rho_s`` varies slowly.
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable
 
 import numpy as np
 
 from . import _traffic
 from ._spots import _pad, check_spots, pad_cells
-from ._traffic import FLUXES, LIMITERS, FluxShape, flux_from_name
+from ._traffic import FLUXES, FluxShape, flux_from_name
 from ..grid import Grid
 from .orifice import check_orifice, source_profile
 from ..parameters import Orifice, Spots

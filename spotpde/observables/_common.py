@@ -131,7 +131,7 @@ def coarse_grain(grid, x, z, values: Mapping[str, np.ndarray], block: np.ndarray
         coarse-grained with).
     """
     h = grid.spacing
-    (x0, x1), (z0, z1) = grid.x_range, grid.z_range
+    x0, z0 = grid.x_range[0], grid.z_range[0]
     ix = np.floor((x - x0) / h).astype(np.int64)
     iz = np.floor((z - z0) / h).astype(np.int64)
     ok = (ix >= 0) & (ix < grid.nx) & (iz >= 0) & (iz < grid.nz) & np.isfinite(x) & np.isfinite(z)

@@ -60,7 +60,7 @@ DIFFUSIVITIES = ("passage", "mean-field")
 _SUB = 32
 
 __all__ = ["cage_breaking", "relative_tensor", "mean_field_tensor", "mean_fall_1d",
-           "DIFFUSIVITIES", "solve", "local_lengths", "add_to_result"]
+           "DIFFUSIVITIES", "solve"]
 
 
 # --------------------------------------------------------------------------------------
