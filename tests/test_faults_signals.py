@@ -276,3 +276,68 @@ def test_two_threads_write_two_complete_results(tmp_path):
     np.testing.assert_array_equal(first["P"].values, second["P"].values)   # same case
     np.testing.assert_array_equal(first["rho_s"].values, second["rho_s"].values)
     assert leftovers(tmp_path) == []
+
+
+# -- issue 30 items 13 and 17: numba's cache cannot be used ---------------------------------
+
+def _package_cache_files() -> list[Path]:
+    return sorted(ROOT.joinpath("spotpde").rglob("*.nb[ic]"))
+
+
+@pytest.mark.parametrize("blocker", ["a file", "another user's directory"])
+def test_no_writable_cache_directory_warns_once_and_runs(tmp_path, blocker):
+    """No HOME to write in, and the temporary fallback taken: compile without a cache
+    (numba raised "cannot cache function", or wrote into the package's __pycache__)."""
+    (tmp_path / "c.toml").write_text(FIELDS)
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    fallback = tmp / f"spotpde-{os.getuid()}"
+    if blocker == "a file":
+        fallback.write_text("")
+    else:
+        if os.geteuid() != 0:
+            pytest.skip("only root can give a directory to another user")
+        fallback.mkdir()
+        os.chown(fallback, 65534, 65534)
+        fallback.chmod(0o777)                 # writable, but not ours: never used
+    (tmp_path / "home").write_text("")        # HOME is a file: ~/.cache cannot be made
+    before = _package_cache_files()
+    env = {"HOME": str(tmp_path / "home"), "TMPDIR": str(tmp), "NUMBA_CACHE_DIR": None,
+           "SPOTPDE_CACHE_DIR": None, "XDG_CACHE_HOME": None}
+    proc = driven("", "run", "c.toml", "-q", cwd=tmp_path, env=env)
+    assert proc.returncode == 0, proc.stderr
+    assert "Traceback" not in proc.stderr
+    warning, wrote = proc.stderr.strip().splitlines()
+    assert warning.startswith("spotpde: warning: no writable cache directory")
+    assert str(fallback / "numba") in warning and "without a cache" in warning
+    assert wrote.startswith("spotpde: wrote")
+    assert sio.read_netcdf(tmp_path / "r.nc")["rho_s"].shape == (16, 16)
+    assert _package_cache_files() == before   # nothing cached inside the package
+    assert not (fallback / "numba").exists()  # nor in another user's directory
+
+
+FULL_CACHE = """
+import errno
+import spotpde
+from numba.core import caching
+def full(self, filepath):
+    raise OSError(errno.ENOSPC, "No space left on device", filepath)
+caching.IndexDataCacheFile._open_for_write = full
+"""
+
+
+def test_full_cache_directory_warns_once_naming_it_and_runs(tmp_path):
+    """Every write into numba's cache fails with ENOSPC: the run goes on (it failed with
+    "No space left on device" naming no cache)."""
+    (tmp_path / "c.toml").write_text(FIELDS)
+    cache = tmp_path / "numba-cache"
+    proc = driven(FULL_CACHE, "run", "c.toml", "-q", cwd=tmp_path,
+                  env={"NUMBA_CACHE_DIR": str(cache)})
+    assert proc.returncode == 0, proc.stderr
+    assert "Traceback" not in proc.stderr
+    warning, wrote = proc.stderr.strip().splitlines()    # one warning for all kernels
+    assert warning == (f"spotpde: warning: cannot write numba's cache in {cache} (No space "
+                       "left on device): compiling without it from here on")
+    assert wrote.startswith("spotpde: wrote")
+    assert sio.read_netcdf(tmp_path / "r.nc")["rho_s"].shape == (16, 16)
+    assert not list(cache.rglob("*.nbi"))
