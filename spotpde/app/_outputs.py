@@ -20,7 +20,9 @@ computes for minutes and then fails to write, and never destroys data:
 :func:`handle_termination` makes SIGTERM and SIGHUP behave like Ctrl-C: they raise
 :class:`Terminated` (a :class:`KeyboardInterrupt`), so the same clean-up runs (the
 temporary file of an atomic write is removed) and the command exits with status
-128 + the signal number.
+128 + the signal number. :class:`held_signals` holds these signals back for a block that
+must not be cut halfway (a netCDF write inside xarray's file lock, the clean-up of a
+temporary file) and acts on them when the block is done.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ import os
 import signal
 import stat
 import tempfile
+import threading
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -63,6 +66,85 @@ def handle_termination() -> None:
             signal.signal(sig, _raise_terminated)
         except ValueError:   # not the main thread
             return
+
+
+#: The signals that stop a command (SIGINT, SIGTERM, SIGHUP where they exist).
+STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP")
+                     if hasattr(signal, name))
+
+
+class held_signals:
+    """Hold :data:`STOP_SIGNALS` back for a block that must not be interrupted halfway.
+
+    Inside the block a signal is only recorded in ``received``. On leaving it the previous
+    handlers come back and the first signal received is raised again
+    (:func:`signal.raise_signal`), so that whatever handled it before acts on it now:
+    ``KeyboardInterrupt`` for SIGINT, :class:`Terminated` under :func:`handle_termination`,
+    the default action (the end of the process) where no handler is set. Blocks nest (an
+    inner one hands its signal to the outer one). Ignored signals stay ignored; outside the
+    main thread, which receives no signals in Python, it does nothing.
+
+    Why: Python runs a signal's handler between any two bytecodes, also inside a library
+    that holds a lock. A ``KeyboardInterrupt`` raised while xarray acquires its netCDF lock
+    leaves the lock taken, and the next netCDF call (closing the file) waits for it forever;
+    one raised during the removal of a temporary file leaves the file behind.
+
+    Args:
+        drop: forget the signals received instead of raising them again, for a clean-up
+            that runs because the process is stopping anyway (a second Ctrl-C must not cut
+            the clean-up of the first). A signal received while the block raises a
+            ``KeyboardInterrupt`` of its own is dropped too.
+    """
+
+    def __init__(self, drop: bool = False):
+        self.drop = drop
+        self.received: list[int] = []
+        self._previous: dict = {}
+
+    def __enter__(self) -> "held_signals":
+        self.received = []
+        self._previous = {}
+        if threading.current_thread() is not threading.main_thread():
+            return self
+        try:
+            for sig in STOP_SIGNALS:
+                if signal.getsignal(sig) in (signal.SIG_IGN, None):
+                    continue
+                self._previous[sig] = signal.signal(sig, self._record)
+        except BaseException:   # a signal while swapping: put everything back first
+            self._restore()
+            raise
+        return self
+
+    def _record(self, signum, frame):  # noqa: ARG002 - signal handler signature
+        self.received.append(signum)
+
+    def _restore(self) -> None:
+        pending, self._previous = list(self._previous.items()), {}
+        try:
+            while pending:
+                signal.signal(*pending[0])
+                del pending[0]
+        finally:            # a signal whose handler came back first cut the loop: finish it
+            for sig, handler in pending:
+                signal.signal(sig, handler)
+
+    def __exit__(self, kind, value, tb) -> bool:
+        self._restore()
+        interrupted = kind is not None and issubclass(kind, KeyboardInterrupt)
+        if self.received and not self.drop and not interrupted:
+            signal.raise_signal(self.received[0])
+        return False
+
+
+def file_identity(path: str | os.PathLike) -> tuple[int, int] | None:
+    """``(device, inode)`` of ``path``, or ``None`` when there is no such file: an atomic
+    write (a new file renamed onto ``path``) changes it."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino
 
 
 def resolve(path: str | os.PathLike) -> Path:

@@ -19,7 +19,8 @@ from pathlib import Path
 
 from .._version import __version__
 from . import _cli_fit
-from ._outputs import FIGURE_FORMATS, Terminated, handle_termination, output_problem
+from ._outputs import (FIGURE_FORMATS, Terminated, file_identity, handle_termination,
+                       held_signals, output_problem)
 from ..errors import CaseError, NumericalError, WriteError
 
 EXIT_OK, EXIT_NUMERICAL, EXIT_INVALID, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -193,6 +194,7 @@ def cmd_run(args) -> int:
         _estimate(case, args.allow_long, args.quiet)
     progress = None if args.quiet else Progress()
     t0 = time.monotonic()
+    args.target = (out, file_identity(out))     # replaced by this run, if it gets that far
     warm = _warmup(case) if args.command_line else None
     try:
         if progress is not None:
@@ -420,12 +422,25 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _interrupted(args, exc: KeyboardInterrupt) -> int:
-    """Say what an interrupt left (one line); returns the exit status, 130 or 128 + n."""
-    written = getattr(args, "written", None)
-    what = (f"terminated by signal {exc.signum}" if isinstance(exc, Terminated)
-            else "interrupted")
-    _say(f"spotpde: {what}; {written} is complete" if written else
-         f"spotpde: {what}, no result written")
+    """Say what an interrupt left (one line); returns the exit status, 130 or 128 + n.
+
+    A further signal is dropped meanwhile; temporary files whose own clean-up a second
+    signal cut are removed. The result counts as written when the run renamed its file
+    into place (the target is another file than before the run), whenever the signal came.
+    """
+    with held_signals(drop=True):
+        io = sys.modules.get("spotpde.app.io")
+        if io is not None and getattr(args, "command_line", False):   # the process's own
+            io.remove_temporaries()
+        written = getattr(args, "written", None)
+        target, before = getattr(args, "target", (None, None))
+        if written is None and target is not None and file_identity(target) not in (None,
+                                                                                     before):
+            written = target
+        what = (f"terminated by signal {exc.signum}" if isinstance(exc, Terminated)
+                else "interrupted")
+        _say(f"spotpde: {what}; {written} is complete" if written else
+             f"spotpde: {what}, no result written")
     return 128 + exc.signum if isinstance(exc, Terminated) else EXIT_INTERRUPTED
 
 

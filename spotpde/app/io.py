@@ -9,6 +9,16 @@ failed write never leaves a half-written result. :class:`FrameWriter` does the s
 run whose tracer frames are streamed to the file as the solver produces them, so memory
 does not grow with the number of frames. :func:`read_netcdf` reads a result back.
 
+Signals and threads: a write holds SIGINT, SIGTERM and SIGHUP back
+(:class:`~spotpde.app._outputs.held_signals`) while it is inside netCDF4 and xarray and
+while it removes its temporary file; a signal received meanwhile is acted upon once the
+write is complete, before the rename (the temporary file is removed, ``path`` is left as
+it was) or, when it came during the rename, after it (``path`` is complete). The HDF5
+library under netCDF4 is not thread-safe, and xarray opens a file without its own lock:
+every write and read here takes one lock (:data:`NETCDF_LOCK`) for its whole length, and
+the netCDF4 calls of :class:`FrameWriter` also take xarray's netCDF lock, so that
+``spotpde.run(case, path=...)`` in several threads writes one file at a time.
+
 Units (CF-1.10): every length is in particle diameters d and every time in the case's
 time unit (``spots.drift`` is the spot speed in d per time unit), so every quantity is a
 pure number and carries ``units = "1"``; its ``long_name`` says the scale ("in particle
@@ -23,8 +33,10 @@ Coordinates carry ``axis`` (``X``, ``Y``, ``Z``, ``T``) and ``z`` ``positive = "
 
 from __future__ import annotations
 
+import contextlib
 import os
 import tempfile
+import threading
 from pathlib import Path
 from typing import Mapping
 
@@ -32,6 +44,12 @@ import numpy as np
 import xarray as xr
 
 from ..errors import WriteError
+from ._outputs import held_signals
+
+#: One netCDF write or read of spotpde at a time in this process (HDF5 is not
+#: thread-safe): held by :func:`write_netcdf`, :func:`read_netcdf`, each step of a
+#: :class:`FrameWriter`, and while ``spotpde.run`` opens the file it wrote.
+NETCDF_LOCK = threading.RLock()
 
 UNITS_NOTE = ("every quantity is dimensionless (units '1'): lengths in particle diameters d, "
               "times in the case's time unit (spots.drift is in d per time unit); "
@@ -241,16 +259,25 @@ def write_netcdf(ds: xr.Dataset, path: str | os.PathLike, *,
         The absolute path written.
     """
     path = Path(os.path.abspath(path))
-    tmp = _temporary(path)
-    try:
-        ds.to_netcdf(tmp, mode="w", format="NETCDF4", engine="netcdf4",
-                     encoding=_encoding(ds, complevel))
-        _publish(tmp, path)
-    except BaseException as exc:
-        _unlink(tmp)
-        if isinstance(exc, Exception) and not isinstance(exc, WriteError):
-            raise _write_error(path, exc) from None
-        raise
+    tmp = None
+    with NETCDF_LOCK, held_signals() as held:
+        try:
+            tmp = _temporary(path)
+            ds.to_netcdf(tmp, mode="w", format="NETCDF4", engine="netcdf4",
+                         encoding=_encoding(ds, complevel))
+            stopped = bool(held.received)     # a signal during the write: no result
+            if stopped:
+                _unlink(tmp)
+            else:
+                _publish(tmp, path)
+        except BaseException as exc:
+            if tmp is not None:
+                _unlink(tmp)
+            if isinstance(exc, Exception) and not isinstance(exc, WriteError):
+                raise _write_error(path, exc) from None
+            raise
+    if stopped:       # its handler did not raise
+        raise _stopped(path, held.received[0])
     return path
 
 
@@ -260,7 +287,8 @@ class FrameWriter:
     Used as ``on_frame`` callback of :func:`spotpde.tracer.solve`. The file is a
     temporary one in the target's directory until :meth:`finish` renames it onto
     ``path``; leaving the ``with`` block with an exception (or Ctrl-C) removes it and
-    leaves an existing ``path`` untouched. The finished file is the same as
+    leaves an existing ``path`` untouched. Signals and threads: see the module docstring
+    (a signal is acted upon between two steps, never inside netCDF4 or the clean-up). The finished file is the same as
     :func:`write_netcdf` writes for the whole Dataset: ``P`` is compressed the same way,
     chunked one frame at a time.
 
@@ -277,19 +305,21 @@ class FrameWriter:
 
         self.path = Path(os.path.abspath(path))
         self.complevel = complevel
-        self.tmp = _temporary(self.path)
+        self.tmp = self._nc = None
         try:
-            nc = netCDF4.Dataset(self.tmp, "w", format="NETCDF4")
-            axes = ("t", *grid.axes)
-            for axis, n in zip(axes, (frames, *grid.shape)):
-                nc.createDimension(axis, n)   # coordinates come with the Dataset in finish()
-            P = nc.createVariable("P", "f8", axes, zlib=True, complevel=complevel,
-                                  shuffle=True, chunksizes=(1, *grid.shape))
-            P.setncatts(variable_attrs("P", silo_dims(grid)))
-        except BaseException:
-            self.abort()
+            with NETCDF_LOCK, held_signals():
+                self.tmp = _temporary(self.path)
+                with _netcdf_lock():
+                    self._nc = nc = netCDF4.Dataset(self.tmp, "w", format="NETCDF4")
+                    axes = ("t", *grid.axes)
+                    for axis, n in zip(axes, (frames, *grid.shape)):
+                        nc.createDimension(axis, n)   # coordinates come in finish()
+                    P = nc.createVariable("P", "f8", axes, zlib=True, complevel=complevel,
+                                          shuffle=True, chunksizes=(1, *grid.shape))
+                    P.setncatts(variable_attrs("P", silo_dims(grid)))
+        except BaseException as exc:
+            self._abort(drop=isinstance(exc, KeyboardInterrupt))
             raise
-        self._nc = nc
 
     def __call__(self, index: int, time: float, P: np.ndarray) -> None:
         """Write frame ``index`` (the tracer's ``on_frame`` callback).
@@ -299,7 +329,8 @@ class FrameWriter:
                 size limit); the temporary file has been removed.
         """
         try:
-            self._nc["P"][index] = P
+            with NETCDF_LOCK, held_signals(), _netcdf_lock():
+                self._nc["P"][index] = P
         except Exception as exc:
             self.abort()
             raise _write_error(self.path, exc) from None
@@ -313,38 +344,58 @@ class FrameWriter:
 
         Returns:
             The absolute path written.
+
+        A signal received during this call is acted upon when it returns: before the
+        rename, the temporary file is removed and ``path`` left as it was.
         """
-        try:
-            nc, self._nc = self._nc, None     # closed once, here, even if closing fails
-            nc.close()
-            ds.to_netcdf(self.tmp, mode="a", format="NETCDF4", engine="netcdf4",
-                         encoding=_encoding(ds, self.complevel))
-            _publish(self.tmp, self.path)
-        except BaseException as exc:
-            self.abort()
-            if isinstance(exc, Exception) and not isinstance(exc, WriteError):
-                raise _write_error(self.path, exc) from None
-            raise
+        with NETCDF_LOCK, held_signals() as held:
+            try:
+                nc, self._nc = self._nc, None     # closed once, here, even if closing fails
+                with _netcdf_lock():
+                    nc.close()
+                ds.to_netcdf(self.tmp, mode="a", format="NETCDF4", engine="netcdf4",
+                             encoding=_encoding(ds, self.complevel))
+                stopped = bool(held.received)     # a signal during the write: no result
+                if stopped:
+                    self.abort()
+                else:
+                    _publish(self.tmp, self.path)
+            except BaseException as exc:
+                self.abort()
+                if isinstance(exc, Exception) and not isinstance(exc, WriteError):
+                    raise _write_error(self.path, exc) from None
+                raise
+        if stopped:       # its handler did not raise
+            raise _stopped(self.path, held.received[0])
         return self.path
 
     def abort(self) -> None:
         """Close the file if it is still open and remove the temporary file (nothing is
-        left behind; safe to call more than once, and after a failed close)."""
-        nc, self._nc = getattr(self, "_nc", None), None
-        if nc is not None:
-            try:
-                if nc.isopen():
-                    nc.close()
-            except Exception:  # noqa: BLE001 - a failing close (disk full) must not stop the unlink
-                pass
-        _unlink(self.tmp)
+        left behind; safe to call more than once, and after a failed close). Signals are
+        held back until it is done."""
+        self._abort(drop=False)
+
+    def _abort(self, drop: bool) -> None:
+        """:meth:`abort`; ``drop``: forget signals received meanwhile (the process is
+        stopping already)."""
+        with held_signals(drop=drop):
+            nc, self._nc = getattr(self, "_nc", None), None
+            if nc is not None:
+                try:
+                    with NETCDF_LOCK, _netcdf_lock():
+                        if nc.isopen():
+                            nc.close()
+                except Exception:  # noqa: BLE001 - a failing close (disk full) must not stop the unlink
+                    pass
+            if getattr(self, "tmp", None) is not None:
+                _unlink(self.tmp)
 
     def __enter__(self) -> "FrameWriter":
         return self
 
     def __exit__(self, kind, value, tb) -> None:
         if kind is not None:
-            self.abort()
+            self._abort(drop=issubclass(kind, KeyboardInterrupt))
 
 
 def read_netcdf(path: str | os.PathLike) -> xr.Dataset:
@@ -364,7 +415,7 @@ def read_netcdf(path: str | os.PathLike) -> xr.Dataset:
     if not os.path.isfile(path):
         raise ValueError(f"{path}: no such result file")
     try:
-        with xr.open_dataset(path, engine="netcdf4") as ds:
+        with NETCDF_LOCK, held_signals(), xr.open_dataset(path, engine="netcdf4") as ds:
             ds = ds.load()
     except Exception as exc:  # netCDF4/HDF5 raise assorted errors for bad files
         raise ValueError(f"{path}: not a readable netCDF file ({exc})") from None
@@ -425,11 +476,41 @@ def _write_error(path: Path, exc: BaseException) -> WriteError:
     return WriteError(f"could not write {path} ({why}); nothing was written")
 
 
+def _stopped(path: Path, signum: int) -> WriteError:
+    """The error of a write that a signal stopped (when the signal's handler returned)."""
+    return WriteError(f"could not write {path} (stopped by signal {signum}); nothing was "
+                      "written")
+
+
+def _netcdf_lock():
+    """xarray's lock around netCDF4 calls (every xarray read and write takes it): the
+    :class:`FrameWriter`'s own netCDF4 calls take it too, so no other thread's xarray
+    I/O runs inside HDF5 beside them."""
+    try:
+        from xarray.backends.netCDF4_ import NETCDF4_PYTHON_LOCK
+    except ImportError:     # pragma: no cover - another xarray layout
+        return contextlib.nullcontext()
+    return NETCDF4_PYTHON_LOCK
+
+
+#: Temporary files of writes under way in this process (:func:`remove_temporaries`).
+_LIVE: set[str] = set()
+
+
+def remove_temporaries() -> None:
+    """Remove the temporary files of every write still under way in this process (for a
+    command that stops on a signal: a second signal may have cut a write's own clean-up)."""
+    with held_signals(drop=True):
+        for tmp in list(_LIVE):
+            _unlink(tmp)
+
+
 def _unlink(path: str) -> None:
     try:
         os.unlink(path)
     except FileNotFoundError:
         pass
+    _LIVE.discard(path)
 
 
 def _encoding(ds: xr.Dataset, complevel: int) -> dict:
@@ -441,6 +522,7 @@ def _encoding(ds: xr.Dataset, complevel: int) -> dict:
 def _temporary(path: Path) -> str:
     """An empty temporary file next to ``path`` (hidden, ``.tmp``), for an atomic write."""
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    _LIVE.add(tmp)
     os.close(fd)
     return tmp
 
@@ -449,6 +531,7 @@ def _publish(tmp: str, path: Path) -> None:
     """Give ``tmp`` the usual permissions (0666 minus the umask) and rename it onto ``path``."""
     os.chmod(tmp, 0o666 & ~_umask())
     os.replace(tmp, path)
+    _LIVE.discard(tmp)
 
 
 def _umask() -> int:

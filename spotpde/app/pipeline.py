@@ -39,7 +39,8 @@ from .._version import __version__
 from .cases import Case, load_case
 from ..errors import CaseError, NumericalError
 from .._roundoff import clip_roundoff
-from .io import cf_attrs, FrameWriter, make_dataset, write_netcdf
+from .io import cf_attrs, FrameWriter, make_dataset, NETCDF_LOCK, write_netcdf
+from ._outputs import held_signals
 from ..parameters import TracerStart, in_bands
 
 #: The pipeline's stages, in order, as reported to ``progress``.
@@ -60,7 +61,9 @@ def run(case: Case | str, progress: Progress | None = None, *,
         path: also write the result there as netCDF, atomically. The tracer frames are
             then streamed to the file as they are computed instead of being held in
             memory, and the returned Dataset reads ``P`` lazily from the file (one
-            frame per chunk), so memory does not grow with ``tracer.frames``.
+            frame per chunk), so memory does not grow with ``tracer.frames``. Runs in
+            several threads write their files one at a time (``spotpde.app.io``); a
+            signal is acted upon between the steps of a write, never inside one.
         on_fields: optional ``on_fields(fields)``, called once with the steady
             coefficient fields (dict of grid arrays, as returned by :func:`case_fields`)
             right after the particle-fields stage, before the tracer stage and before
@@ -118,7 +121,8 @@ def run(case: Case | str, progress: Progress | None = None, *,
 
             ds = _run(case, progress, open_frames=open_writer, on_fields=hook)
             written = writers[0].finish(ds)
-        return xr.open_dataset(written, engine="netcdf4", chunks={})  # P: one frame a chunk
+        with NETCDF_LOCK, held_signals():   # another thread's write; a signal in xarray's lock
+            return xr.open_dataset(written, engine="netcdf4", chunks={})  # P: a frame a chunk
     except ValueError as err:
         if raised and err is raised[0]:
             raise
