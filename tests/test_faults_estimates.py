@@ -353,8 +353,14 @@ def test_underflowing_kernel_amplitude_is_refused_by_name(tmp_path, capsys, key,
 
 
 def test_effective_spot_length_names_its_kernel_argument():
-    for kernel in (kernels.Uniform(radius=1.0, height=1e-320),
-                   kernels.from_spec("uniform", 1.0, 1e-320, 1.0, 2)):
+    # a uniform kernel this weak is refused where it is made, by its argument's name
+    with pytest.raises(ValueError, match=r"^height must be in \[1e-12, 1\]"):
+        kernels.Uniform(radius=1.0, height=1e-320)
+    with pytest.raises(ValueError, match=r"^volume: .* < 1e-12"):
+        kernels.from_spec("uniform", 1.0, 1e-320, 1.0, 2)
+    # one whose w**2 underflows (V2 = 0) is refused by the passage length, naming kernel
+    for kernel in (kernels.Gaussian(sigma=1.0, volume=1e-320),
+                   kernels.from_spec("exponential", 1.0, 1e-320, 1.0, 2)):
         with pytest.raises(ValueError, match=r"^kernel: its volumes V1 = .* and V2 = 0 must"):
             _passage.effective_spot_length(kernel, 1.3)
 

@@ -580,6 +580,10 @@ def from_spec(shape: str, size: float, volume: float, aspect: float = 1.0, dims:
             raise ValueError(f"volume: a uniform kernel of size {size:g} with volume "
                              f"{volume:g} has the influence w = {height:.3g} > 1 (a spot "
                              "moves a particle by at most its own step)")
+        if not height >= HEIGHT_RANGE[0]:
+            raise ValueError(f"volume: a uniform kernel of size {size:g} with volume "
+                             f"{volume:g} has the influence w = {height:.3g} < "
+                             f"{HEIGHT_RANGE[0]:g} (w**2 would leave floating point)")
         kernel = Uniform(radius=size, height=min(height, HEIGHT_RANGE[1]), dims=dims,
                          aspect=aspect)
         kernel.amplitude = height    # V1 as given (w a rounding above 1 allowed)
