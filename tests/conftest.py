@@ -44,6 +44,22 @@ def session_dir(name: str) -> Path:
     return d
 
 
+#: A tiny case without a tracer (a run is a fraction of a second once imported), for
+#: the tests of commands, outputs and faults.
+FIELDS = """
+[domain]
+x = [-4.0, 4.0]
+z = [0.0, 8.0]
+spacing = 0.5
+
+[orifice]
+width = 2.0
+
+[output]
+path = "r.nc"
+"""
+
+
 os.environ.setdefault("SPOTPDE_FFTW_PLANNER", "FFTW_ESTIMATE")
 if not os.environ.get("SPOTPDE_CACHE_DIR"):
     os.environ["SPOTPDE_CACHE_DIR"] = str(session_dir("cache"))

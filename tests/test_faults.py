@@ -30,23 +30,10 @@ import xarray as xr
 import spotpde
 from spotpde.app import io as sio
 from spotpde.app.cases import estimate_bytes, kernel_halfwidths, load_case, validate
-from conftest import session_dir
+from conftest import FIELDS, session_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 
-#: a case without a tracer: a run is a fraction of a second once imported
-FIELDS = """
-[domain]
-x = [-4.0, 4.0]
-z = [0.0, 8.0]
-spacing = 0.5
-
-[orifice]
-width = 2.0
-
-[output]
-path = "r.nc"
-"""
 #: the same with a tracer that runs for a long time (for the signals)
 LONG = FIELDS + """
 [tracer]

@@ -33,6 +33,8 @@ from spotpde.errors import WriteError
 
 from test_cli import SMALL, fake_dataset
 
+from conftest import FIELDS
+
 ROOT = Path(__file__).resolve().parents[1]
 PNG = b"\x89PNG\r\n\x1a\n"
 OLD = b"the user's old figure, which must survive"
@@ -43,19 +45,6 @@ COMPARE = """
 x = [-12.0, 12.0]
 z = [0.0, 20.0]
 spacing = 1.0
-
-[orifice]
-width = 2.0
-
-[output]
-path = "r.nc"
-"""
-#: a tiny field-only case for real runs
-FIELDS = """
-[domain]
-x = [-4.0, 4.0]
-z = [0.0, 8.0]
-spacing = 0.5
 
 [orifice]
 width = 2.0

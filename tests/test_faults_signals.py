@@ -22,21 +22,10 @@ import pytest
 from spotpde.app import io as sio
 from spotpde.app._outputs import held_signals
 
+from conftest import FIELDS
+
 ROOT = Path(__file__).resolve().parents[1]
 
-#: a case without a tracer: written by write_netcdf
-FIELDS = """
-[domain]
-x = [-4.0, 4.0]
-z = [0.0, 8.0]
-spacing = 0.5
-
-[orifice]
-width = 2.0
-
-[output]
-path = "r.nc"
-"""
 #: the same with a short tracer: frames streamed by a FrameWriter, finished by finish()
 TRACER = FIELDS + """
 [tracer]
