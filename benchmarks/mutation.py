@@ -57,13 +57,13 @@ M = Mutation
 F, T = "spotpde/fields/", "tests/"
 MUTATIONS = (
     # -- the ten survivors of the audit in issue 32 -----------------------------------------
-    M("axisym-div-u", F + "_axisymmetric.py",
+    M("axisym-div-u", "spotpde/geometry/_shapes.py",
       'radial = masked_derivative(r * u["u_r"], h, 1, act, even_axis=True) / r',
       'radial = masked_derivative(u["u_r"], h, 1, act, even_axis=True)',
       (T + "test_axisymmetric_fields.py::test_cylindrical_divergences_of_linear_fields",
        T + "test_axisymmetric_fields.py::test_incompressibility_defect_of_a_cylinder_is_the_rule_s"),
       "div u_p on a cylinder: (1/r) d_r(r u_r) -> d_r u_r", True),
-    M("axisym-div-Drz", F + "_axisymmetric.py",
+    M("axisym-div-Drz", "spotpde/geometry/_shapes.py",
       'out["z"] += masked_derivative(r * rz, h, 1, act, even_axis=True) / r',
       'out["z"] += masked_derivative(rz, h, 1, act, even_axis=True)',
       (T + "test_axisymmetric_fields.py::test_cylindrical_divergences_of_linear_fields",),
