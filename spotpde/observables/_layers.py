@@ -7,9 +7,8 @@ the record does. The model's drained fraction is the tracer's ``outflow(t)`` sta
 from the same bands (a case with ``tracer.layers``).
 
 Errors: a single drainage is one realisation of a flow that fluctuates as a whole, so
-no time blocks exist; the jackknife over groups of grains (interleaved in initial ``x``,
-so that every group samples every column) only measures the sampling of grains and is a
-lower bound. Give several independent runs
+no time blocks exist; the jackknife over groups of grains (dealt at random) only
+measures the sampling of grains and is a lower bound. Give several independent runs
 (``spotpde.observables.measure`` with a list of tracks) for honest errors.
 """
 
@@ -73,9 +72,10 @@ def drained_fraction(source, case=None, *, spacing: float | None = None,
     ended = (last < z.shape[1] - 1) & (z[np.arange(z.shape[0]), last] < exit_height)
     t_end = np.where(ended, t[np.minimum(last + 1, t.size - 1)], np.inf)
     t_out = np.minimum(t_out, t_end)
-    # groups interleaved in x: each holds grains from every column, so leaving one out
-    # measures the sampling of grains, not the difference between the silo's columns
-    group = np.argsort(np.argsort(x[:, 0] + 1e-6 * z_first[coloured])) % blocks
+    # grains dealt to the groups at random (a fixed deal): the jackknife then measures the
+    # random sampling of grains. Groups by column overstate it (they count the columns'
+    # difference as noise), groups interleaved in x understate it (stratified by x).
+    group = np.random.default_rng(0).permutation(x.shape[0]) % blocks
     out = (t_out[None, :] <= t[:, None]).astype(float)        # (t, grain)
     sums = {"n": np.stack([np.full(t.size, float((group == g).sum())) for g in range(blocks)]),
             "d": np.stack([out[:, group == g].sum(axis=1) for g in range(blocks)])}
