@@ -194,3 +194,42 @@ def blob(x: float, z: float, width: float, n: int, seed: int = 0) -> np.ndarray:
 def layer_mask(z, spacing: float) -> np.ndarray:
     """True for heights in the coloured bands ``[k s, k s + s/2)`` (the layered silo)."""
     return in_bands(z, spacing)
+
+
+def tracking(tracked, n: int, records: int, n_ticks: int, levels, z_tracked, ncoord: int):
+    """The bookkeeping of tracked particles for a Monte Carlo run (2D and 3D alike).
+
+    Args:
+        tracked: ``"all"``, None or particle indices.
+        n: number of particles. records: snapshots of the tracked particles.
+        n_ticks: ticks of the run. levels: heights (d) whose crossings are recorded.
+        z_tracked: a callable giving the heights of the tracked particles (indices -> d).
+        ncoord: coordinates per position (2: ``(x, z)``, 3: ``(x, z, y)``).
+
+    Returns:
+        dict: ``tracked`` (indices), ``track_slot`` (particle -> row or -1),
+        ``rec_ticks``, ``tpos`` (snapshot, particle, ncoord; NaN), ``levels`` (sorted),
+        ``lev_next``, ``cross_x``, ``cross_t`` (tracked x level; NaN), ``exit_x``,
+        ``exit_t`` (per particle; NaN).
+    """
+    if tracked is None:
+        tracked = np.zeros(0, np.int64)
+    elif isinstance(tracked, str):
+        if tracked != "all":
+            raise ValueError(f"tracked: must be 'all', None or indices, got {tracked!r}")
+        tracked = np.arange(n)
+    tracked = np.asarray(tracked, np.int64)
+    track_slot = -np.ones(n, np.int64)
+    track_slot[tracked] = np.arange(tracked.size)
+    records = max(1, int(records)) if tracked.size else 0
+    rec_ticks = (np.round(np.linspace(0, n_ticks, records + 1)[1:]).astype(np.int64) - 1
+                 if records else np.zeros(0, np.int64))
+    rec_ticks = np.unique(np.clip(rec_ticks, 0, n_ticks - 1))
+    levels = np.sort(np.asarray(levels, float))
+    return dict(
+        tracked=tracked, track_slot=track_slot, rec_ticks=rec_ticks,
+        tpos=np.full((rec_ticks.size, tracked.size, ncoord), np.nan), levels=levels,
+        lev_next=np.searchsorted(levels, z_tracked(tracked), side="right").astype(np.int64) - 1,
+        cross_x=np.full((tracked.size, levels.size), np.nan),
+        cross_t=np.full((tracked.size, levels.size), np.nan),
+        exit_x=np.full(n, np.nan), exit_t=np.full(n, np.nan))

@@ -43,8 +43,9 @@ import numpy as np
 from . import _mc_kernels as K
 from ..grid import Grid
 from ..parameters import Orifice, Spots
-from ._particles import blob, lattice, random_packing
+from ._particles import blob, lattice, random_packing, tracking
 from ._relax import Relax, draw_diameters, relax_params
+from ._simulate3d import case_particles3d, run3d
 
 STEPS = ("gaussian", "binary")
 
@@ -341,8 +342,6 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
     skin = 0.5 if skin is None else float(skin)
     cell = max(kp.reach[0], kp.reach[1], 0.25) + skin
     if grid.dims == 3:
-        from ._simulate3d import run3d
-
         return run3d(grid, orifice, spots, kp, rule=float(rule), gamma=float(gamma),
                      step=step, steps=steps, seed=int(seed), t_end=t_end, dt=dt,
                      n_ticks=n_ticks, Q0=Q0, b0=b0, b_par=b_par, profile=profile, skin=skin,
@@ -399,27 +398,11 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
     cell_idx = np.zeros(max(n, 1), np.int64)
     if n:
         K.build_cells(px, pz, status, x0, z0, cell, ncx, ncz, cell_start, cell_idx)
-    if tracked is None:
-        tracked = np.zeros(0, np.int64)
-    elif isinstance(tracked, str):
-        if tracked != "all":
-            raise ValueError(f"tracked: must be 'all', None or indices, got {tracked!r}")
-        tracked = np.arange(n)
-    tracked = np.asarray(tracked, np.int64)
-    track_slot = -np.ones(n, np.int64)
-    track_slot[tracked] = np.arange(tracked.size)
-    records = max(1, int(records)) if tracked.size else 0
-    rec_ticks = (np.round(np.linspace(0, n_ticks, records + 1)[1:]).astype(np.int64) - 1
-                 if records else np.zeros(0, np.int64))
-    rec_ticks = np.unique(np.clip(rec_ticks, 0, n_ticks - 1))
-    tpos = np.full((rec_ticks.size, tracked.size, 2), np.nan)
-    levels = np.asarray(grid.z if levels is None else levels, float)
-    levels = np.sort(levels)
-    lev_next = np.searchsorted(levels, pz[tracked], side="right").astype(np.int64) - 1
-    cross_x = np.full((tracked.size, levels.size), np.nan)
-    cross_t = np.full((tracked.size, levels.size), np.nan)
-    exit_x = np.full(n, np.nan)
-    exit_t = np.full(n, np.nan)
+    bk = tracking(tracked, n, records, n_ticks, grid.z if levels is None else levels,
+                  lambda i: pz[i], 2)
+    tracked, track_slot, rec_ticks, tpos, levels, lev_next, cross_x, cross_t, exit_x, exit_t = (
+        bk[k] for k in ("tracked", "track_slot", "rec_ticks", "tpos", "levels", "lev_next",
+                        "cross_x", "cross_t", "exit_x", "exit_t"))
     if probes:
         probe = np.zeros((5, batches, grid.nz, grid.nx))
         rho_hist = np.zeros((batches, grid.nz, grid.nx))
@@ -506,8 +489,6 @@ def from_case(case, *, particles="lattice", spacing: float = 1.0, **kwargs) -> M
                          "case is " + ("axisymmetric" if grid.axisymmetric else "a hopper")
                          + " (domain.coordinates / domain.hopper_angle)")
     if grid.dims == 3 and isinstance(particles, str):
-        from ._simulate3d import case_particles3d
-
         particles = case_particles3d(grid, particles, spacing, kwargs.get("seed", 0))
     if isinstance(particles, str):
         if particles == "lattice":

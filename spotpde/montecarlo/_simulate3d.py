@@ -24,6 +24,7 @@ from scipy import special
 
 from . import _mc_kernels as K
 from ._mc3d import advance3, build_cells3, make_params3
+from ._particles import tracking
 from ._relax import draw_diameters, relax_params
 
 __all__ = ["run3d", "coverage_table3", "case_particles3d"]
@@ -162,26 +163,11 @@ def run3d(grid, orifice, spots, kp, *, rule, gamma, step, steps, seed, t_end, dt
     cell_idx = np.zeros(max(n, 1), np.int64)
     if n:
         build_cells3(px, py, pz, status, x0, y0, z0, cell, ncx, ncy, ncz, cell_start, cell_idx)
-    if tracked is None:
-        tracked = np.zeros(0, np.int64)
-    elif isinstance(tracked, str):
-        if tracked != "all":
-            raise ValueError(f"tracked: must be 'all', None or indices, got {tracked!r}")
-        tracked = np.arange(n)
-    tracked = np.asarray(tracked, np.int64)
-    track_slot = -np.ones(n, np.int64)
-    track_slot[tracked] = np.arange(tracked.size)
-    records = max(1, int(records)) if tracked.size else 0
-    rec_ticks = (np.round(np.linspace(0, n_ticks, records + 1)[1:]).astype(np.int64) - 1
-                 if records else np.zeros(0, np.int64))
-    rec_ticks = np.unique(np.clip(rec_ticks, 0, n_ticks - 1))
-    tpos = np.full((rec_ticks.size, tracked.size, 3), np.nan)
-    levels = np.sort(np.asarray(grid.z if levels is None else levels, float))
-    lev_next = np.searchsorted(levels, pz[tracked], side="right").astype(np.int64) - 1
-    cross_x = np.full((tracked.size, levels.size), np.nan)
-    cross_t = np.full((tracked.size, levels.size), np.nan)
-    exit_x = np.full(n, np.nan)
-    exit_t = np.full(n, np.nan)
+    bk = tracking(tracked, n, records, n_ticks, grid.z if levels is None else levels,
+                  lambda i: pz[i], 3)
+    tracked, track_slot, rec_ticks, tpos, levels, lev_next, cross_x, cross_t, exit_x, exit_t = (
+        bk[k] for k in ("tracked", "track_slot", "rec_ticks", "tpos", "levels", "lev_next",
+                        "cross_x", "cross_t", "exit_x", "exit_t"))
 
     mean_active = Q0 * (z1 - z0) / spots.drift
     cap = int(mean_active * 1.2 + 10.0 * math.sqrt(mean_active) + 64)
