@@ -14,7 +14,7 @@ through a 3D cell list, so a spot step costs O(particles within reach). No probe
 from __future__ import annotations
 
 import math
-from typing import NamedTuple, get_type_hints
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -23,7 +23,7 @@ from ._mc_kernels import (C_INJECTED, C_NACTIVE, C_PENDING, C_REBUILDS, C_RELAXA
                           C_RELAXED, C_REMOVED, C_STEPS, C_TICK, C_UPDATES, P_IN, P_ORIFICE,
                           P_SIDE, PROFILE_POINT, PROFILE_UNIFORM,
                           SHAPE_GAUSSIAN, SHAPE_UNIFORM, WALLS_OPEN, first_direction,
-                          next_direction, persistence)
+                          next_direction, persistence, typed)
 from ._relax3d import relax_block3
 
 
@@ -75,20 +75,13 @@ class Params3(NamedTuple):
     ticks_total: int
 
 
-_FIELD_TYPES = get_type_hints(Params3)
-
-
 def make_params3(**values) -> Params3:
     """A :class:`Params3` from keyword values, each converted to its field's type.
 
     Raises:
         TypeError: a field is missing or unknown (the message names it).
     """
-    missing = [k for k in Params3._fields if k not in values]
-    unknown = [k for k in values if k not in Params3._fields]
-    if missing or unknown:
-        raise TypeError(f"make_params3: missing {missing}, unknown {unknown}")
-    return Params3(**{k: _FIELD_TYPES[k](values[k]) for k in Params3._fields})
+    return typed(Params3, "make_params3", values)
 
 
 @njit(cache=True, inline="always")

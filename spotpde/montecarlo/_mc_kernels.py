@@ -80,8 +80,19 @@ class Params(NamedTuple):
     probes: int
 
 
-#: field name -> ``float`` or ``int``
-_FIELD_TYPES = get_type_hints(Params)
+def typed(cls, name: str, values: dict):
+    """A NamedTuple ``cls`` from keyword ``values``, each converted to its field's annotated
+    type (``float`` or ``int``, so that numba compiles one signature only).
+
+    Raises:
+        TypeError: a field is missing or unknown (the message names ``name`` and it).
+    """
+    missing = [k for k in cls._fields if k not in values]
+    unknown = [k for k in values if k not in cls._fields]
+    if missing or unknown:
+        raise TypeError(f"{name}: missing {missing}, unknown {unknown}")
+    types = get_type_hints(cls)
+    return cls(**{k: types[k](values[k]) for k in cls._fields})
 
 
 def make_params(**values) -> Params:
@@ -90,11 +101,7 @@ def make_params(**values) -> Params:
     Raises:
         TypeError: a field is missing or unknown (the message names it).
     """
-    missing = [k for k in Params._fields if k not in values]
-    unknown = [k for k in values if k not in Params._fields]
-    if missing or unknown:
-        raise TypeError(f"make_params: missing {missing}, unknown {unknown}")
-    return Params(**{k: _FIELD_TYPES[k](values[k]) for k in Params._fields})
+    return typed(Params, "make_params", values)
 
 
 # -- kernel shapes, orifice profiles, walls, step kinds -------------------------------------

@@ -139,6 +139,23 @@ def draw_diameters(n: int, polydispersity: float = 0.1, distribution: str = "uni
     return d
 
 
+def particle_diameters(n: int, relax: "Relax | None", diameters, seed: int) -> np.ndarray:
+    """The ``n`` grain diameters of a run (d): ``diameters`` as given (checked), else
+    drawn from ``relax``'s distribution (:func:`draw_diameters`), else all 1.
+
+    Raises:
+        ValueError: ``diameters`` is not ``n`` positive values.
+    """
+    if diameters is None:
+        return (np.ones(n) if relax is None else
+                draw_diameters(n, relax.polydispersity, relax.distribution, seed))
+    diam = np.asarray(diameters, dtype=float).reshape(-1).copy()
+    if diam.shape != (n,) or not np.all(diam > 0):
+        raise ValueError(f"diameters: need {n} positive values, one per particle, "
+                         f"got shape {np.shape(diameters)}")
+    return diam
+
+
 class RelaxParams(NamedTuple):
     """The relaxation's constants as the numba loop reads them (see :class:`Relax`).
 

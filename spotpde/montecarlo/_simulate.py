@@ -44,7 +44,7 @@ from . import _mc_kernels as K
 from ..grid import Grid
 from ..parameters import Orifice, Spots
 from ._particles import blob, lattice, random_packing, tracking
-from ._relax import Relax, draw_diameters, relax_params
+from ._relax import Relax, particle_diameters, relax_params
 from ._simulate3d import case_particles3d, run3d
 
 STEPS = ("gaussian", "binary")
@@ -381,14 +381,7 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
     status = np.zeros(n, np.int64)
     status[pz < z0] = K.P_ORIFICE
     moved = np.zeros(n)
-    if diameters is None:
-        diam = (np.ones(n) if relax is None else
-                draw_diameters(n, relax.polydispersity, relax.distribution, seed))
-    else:
-        diam = np.asarray(diameters, dtype=float).reshape(-1).copy()
-        if diam.shape != (n,) or not np.all(diam > 0):
-            raise ValueError(f"diameters: need {n} positive values, one per particle, "
-                             f"got shape {np.shape(diameters)}")
+    diam = particle_diameters(n, relax, diameters, seed)
     if relax is not None:
         relax = relax.resolved(_relax_reach(kp))
     rp = relax_params(relax, diam, orifice.x, grid.walls == "reflecting")

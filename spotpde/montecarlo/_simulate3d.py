@@ -25,7 +25,7 @@ from scipy import special
 from . import _mc_kernels as K
 from ._mc3d import advance3, build_cells3, make_params3
 from ._particles import tracking
-from ._relax import draw_diameters, relax_params
+from ._relax import particle_diameters, relax_params
 
 __all__ = ["run3d", "coverage_table3", "case_particles3d"]
 
@@ -146,14 +146,7 @@ def run3d(grid, orifice, spots, kp, *, rule, gamma, step, steps, seed, t_end, dt
     status = np.zeros(n, np.int64)
     status[pz < z0] = K.P_ORIFICE
     moved = np.zeros(n)
-    if diameters is None:
-        diam = (np.ones(n) if relax is None else
-                draw_diameters(n, relax.polydispersity, relax.distribution, seed))
-    else:
-        diam = np.asarray(diameters, dtype=float).reshape(-1).copy()
-        if diam.shape != (n,) or not np.all(diam > 0):
-            raise ValueError(f"diameters: need {n} positive values, one per particle, "
-                             f"got shape {np.shape(diameters)}")
+    diam = particle_diameters(n, relax, diameters, seed)
     if relax is not None:
         relax = relax.resolved(relax_reach)
     rp = relax_params(relax, diam, orifice.x, grid.walls == "reflecting")
