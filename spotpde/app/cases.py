@@ -195,6 +195,19 @@ class Case:
 
 # -- loading ------------------------------------------------------------------------
 
+def check_arguments(case, **paths) -> None:
+    """TypeError naming the argument: ``case`` must be a Case, a case file name, TOML text
+    or a mapping; each of ``paths`` a file name (str or os.PathLike) or None. The check
+    that ``spotpde.run`` and ``sweep_case`` make before anything is read or written."""
+    if not isinstance(case, (Case, str, os.PathLike, Mapping)):
+        raise TypeError("case: must be a Case, a case file name, TOML text or a mapping, "
+                        f"got {type(case).__name__}")
+    for name, path in paths.items():
+        if path is not None and not isinstance(path, (str, os.PathLike)):
+            raise TypeError(f"{name}: must be a file name (str or os.PathLike) or None, got "
+                            f"{type(path).__name__}")
+
+
 def load_case(source: str | os.PathLike | Mapping, *, frames_in_memory: bool = True) -> Case:
     """Read and validate a case.
 

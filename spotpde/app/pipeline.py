@@ -29,14 +29,13 @@ import contextlib
 import importlib
 import math
 import os
-from collections.abc import Mapping
 from typing import Callable
 
 import numpy as np
 import xarray as xr
 
 from .._version import __version__
-from .cases import Case, load_case
+from .cases import Case, check_arguments, load_case
 from ..errors import CaseError, NumericalError
 from .._roundoff import clip_roundoff
 from .io import cf_attrs, FrameWriter, make_dataset, NETCDF_LOCK, write_netcdf
@@ -135,12 +134,7 @@ def run(case: Case | str, progress: Progress | None = None, *,
 
 def _check_arguments(case, path, progress, on_fields) -> None:
     """TypeError naming the argument of :func:`run` that has the wrong type."""
-    if not isinstance(case, (Case, str, os.PathLike, Mapping)):
-        raise TypeError("case: must be a Case, a case file name, TOML text or a mapping, "
-                        f"got {type(case).__name__}")
-    if path is not None and not isinstance(path, (str, os.PathLike)):
-        raise TypeError(f"path: must be a file name (str or os.PathLike) or None, got "
-                        f"{type(path).__name__}")
+    check_arguments(case, path=path)
     for name, f in (("progress", progress), ("on_fields", on_fields)):
         if f is not None and not callable(f):
             raise TypeError(f"{name}: must be callable or None, got {type(f).__name__}")

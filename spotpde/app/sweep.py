@@ -46,7 +46,7 @@ import numpy as np
 import xarray as xr
 
 from .._version import __version__
-from .cases import Case, load_case
+from .cases import Case, check_arguments, load_case
 from ..errors import CaseError
 from ._connect import CONNECT_TIMEOUT, MAX_CONNECT_TIMEOUT, connect, connect_timeout  # noqa: F401
 
@@ -291,12 +291,7 @@ def sweep_case(
         spotpde.CaseError: invalid settings, too many members or an invalid member (before
             any work).
     """
-    if not isinstance(case, (Case, str, os.PathLike, Mapping)):
-        raise TypeError("case: must be a Case, a case file name, TOML text or a mapping, "
-                        f"got {type(case).__name__}")
-    if output is not None and not isinstance(output, (str, os.PathLike)):
-        raise TypeError(f"output: must be a file name (str or os.PathLike) or None, got "
-                        f"{type(output).__name__}")
+    check_arguments(case, output=output)
     if not isinstance(case, Case):
         case = load_case(case)
     if isinstance(settings, str):          # one --set item
