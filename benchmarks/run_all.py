@@ -88,7 +88,7 @@ def tracer_figures() -> list[tuple[str, str, str]]:
 MEMORY_CASE = """
     import json, resource, tempfile, os
     import spotpde
-    from spotpde.io import write_netcdf
+    from spotpde.app.io import write_netcdf
     case = spotpde.load_case({
         "domain": {"dims": 2, "x": [-64.0, 64.0], "z": [0.0, 128.0], "spacing": 0.125},
         "orifice": {"width": 4.0, "rate": 21.22},

@@ -214,3 +214,29 @@ def test_imports_run_one_way(package):
     for m in edges:
         if m not in state:
             visit(m, [m])
+
+
+# -- public short names ---------------------------------------------------------------------
+
+def test_short_names_are_attributes_and_no_import_hook_is_installed():
+    """``spotpde.<short>`` is the stage module itself (no second copy); the two short
+    names of the public interface import as modules too; nothing is put on
+    ``sys.meta_path`` (the old-name import hook is gone)."""
+    import sys
+
+    import spotpde
+    from spotpde.density import kinematic as density_kinematic
+    from spotpde.fields import coefficients, kernels as field_kernels
+
+    assert not [f for f in sys.meta_path if type(f).__module__.startswith("spotpde")]
+    assert spotpde.coefficients is coefficients
+    assert spotpde.cases is sys.modules["spotpde.app.cases"]
+    from spotpde.kernels import Gaussian
+    from spotpde.kinematic import point_source
+    assert Gaussian is field_kernels.Gaussian
+    assert point_source is density_kinematic.point_source
+    assert set(spotpde.kernels.__all__) == set(field_kernels.__all__)
+    with pytest.raises(AttributeError, match="no attribute 'teleport'"):
+        spotpde.teleport
+    with pytest.raises(ModuleNotFoundError):
+        import spotpde.pipeline  # noqa: F401  (statement form of a short name: gone)
