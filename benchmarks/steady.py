@@ -14,7 +14,7 @@ Prints, measured in the same run:
   same grid and fields cut off at ``--t-cut`` (default 100), its steps and wall time, and
   the time for ``t_end = 4e5`` extrapolated linearly (steady fields: a constant number of
   steps per unit time);
-* the ratio. (Agreement of the two is in tests/test_steady.py, on cases that drain.)
+* the ratio. (Agreement of the two is in tests/tracer/test_steady.py, on cases that drain.)
 
 Run: ``python benchmarks/steady.py [--repeat 3] [--t-cut 100] [--nx 280]``;
 ``--flagship`` prints instead the numerical diffusion of the steady schemes in the spot

@@ -10,7 +10,7 @@ and removes it when the session ends (``pytest_unconfigure``, or at exit). The
 per-session caches (:func:`session_dir`) live in it, and so does everything made with
 :mod:`tempfile` in this process or in the processes it starts: ``TMPDIR`` and
 ``tempfile.tempdir`` point into it (pytest's own ``tmp_path`` stays where pytest keeps
-it: ``PYTEST_DEBUG_TEMPROOT``). ``tests/test_faults_inputs.py`` runs pytest on two
+it: ``PYTEST_DEBUG_TEMPROOT``). ``tests/app/test_faults_inputs.py`` runs pytest on two
 workers with an empty ``TMPDIR`` and checks that it stays empty.
 """
 

@@ -14,7 +14,7 @@ and ``CallbackTracker`` for progress) fit this equation only on small grids: sta
 needs ``dt < h**2 / (2 dims D)``, about 25 times below the Courant step of the BDF2
 default (:mod:`spotpde.density._transient`); its implicit solver is a fixed-point iteration that
 does not converge once ``D dt / h**2 > 1``. Hence it serves as an independent
-time-integration check of the BDF2 stepping (``tests/test_spot_density.py``).
+time-integration check of the BDF2 stepping (``tests/density/test_spot_density.py``).
 """
 
 from __future__ import annotations

@@ -294,7 +294,7 @@ def length_tensor(kernel, b, b_par=0.0, rule=0.5, *, diffusivity="passage", sepa
     ``2 b_ij (V2 / V1) (1 - C(Delta))``, ``b_ij = diag(b, [b,] b_par)``.
 
     Accuracy of the passage quadrature: about 1e-4 relative for the smooth kernels and
-    1e-3 for the sharp uniform kernel (tests/test_passage.py). Cost: ~0.1-1 s (2D),
+    1e-3 for the sharp uniform kernel (tests/fields/test_passage.py). Cost: ~0.1-1 s (2D),
     a few s (3D pairs).
 
     Args:

@@ -48,7 +48,7 @@ from numba.extending import intrinsic, overload
 # NaN reaches the right-hand side of a cell with a NaN density through the products
 # ``A * P`` of the diffusive fluxes (``0 * NaN`` is NaN), not through the
 # reconstructions: ``min`` and the sign selects of ``face_value`` drop a NaN. Keep
-# those products even where the coefficients are zero (tests/test_tracer_kernel.py
+# those products even where the coefficients are zero (tests/tracer/test_tracer_kernel.py
 # checks that a NaN survives a step).
 FASTMATH = {"contract", "reassoc", "arcp", "nsz"}
 
@@ -354,7 +354,7 @@ class _ThreadDispatch:
     caller's numba thread count needs: serial for one thread, ``parallel=True`` else.
 
     Both run the same chunks with the same operations (the same values to round-off:
-    fast-math contraction may differ between the two builds, tests/test_tracer_coldstart.py);
+    fast-math contraction may differ between the two builds, tests/tracer/test_tracer_coldstart.py);
     a one-thread run (the default below 65536 cells)
     compiles only the serial one, in about 2/3 of the CPU time: ``parallel=True`` has LLVM
     optimise and emit the kernel body four times (kernel, gufunc, two gufunc wrappers).

@@ -121,7 +121,7 @@ def _accumulate_flat(Fk, acc, w):
 def _copy_flat(src, dst):
     """``dst[:] = src`` as an explicit loop: the slice assignment
     ``_plane(Fz_edge, 0)[:] = Fk`` in the parallel loop left ``Fz_edge`` unwritten
-    (numba 0.68; tests/test_tracer_kernel.py caught it)."""
+    (numba 0.68; tests/tracer/test_tracer_kernel.py caught it)."""
     for m in range(src.shape[0]):
         dst[m] = src[m]
 

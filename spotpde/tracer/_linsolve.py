@@ -15,7 +15,7 @@ many times for one ``tau``, so it is factorised once. Two cases:
   SuperLU pays per supernode on such a matrix: for the 89,600 cells of the void
   propagator a solve took 0.7 ms here against 3.1 ms (timed in one process;
   ``benchmarks/long_runs.py`` times the runs with and without it). The solution is
-  SuperLU's to round-off (``tests/test_linsolve.py``).
+  SuperLU's to round-off (``tests/tracer/test_linsolve.py``).
 * anything else: SuperLU (``scipy.sparse.linalg.splu``) with the given column ordering.
 """
 

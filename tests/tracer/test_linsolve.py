@@ -17,7 +17,7 @@ import scipy.sparse.linalg as spla
 
 from spotpde.tracer import _advection, _diffusion, _implicit, _linsolve
 from spotpde.tracer._extrapolation import LIMIT_MARGIN, Extrapolation
-from test_implicit_tracer import _void
+from _problems import diffusion_operator as _diffusion_operator, void_problem as _void
 
 
 def _void_diffusion(h=0.25):
@@ -81,21 +81,6 @@ def _numpy_extrapolation(A, Pa, P1, Pb, tau, eps):
     return Pb + A @ corr, Sb + corr, theta.min()
 
 
-def _diffusion_operator(nz, nx, kind, rng):
-    """A random diffusion operator on an ``nz x nx`` grid (h = 0.5): ``"void"`` D_xx only
-    (tridiagonal), ``"tensor"`` D_xx, D_zz and D_xz (9-point), ``"not dominant"`` the
-    same with |D_xz| > D_xx in some cells (negative off-diagonals); the top two rows have
-    no diffusion (empty trailing columns of the matrix)."""
-    Dxx = rng.uniform(0.2, 1.0, (nz, nx))
-    Dzz = np.zeros((nz, nx)) if kind == "void" else rng.uniform(0.2, 1.0, (nz, nx))
-    Dxz = np.zeros((nz, nx)) if kind == "void" else 0.15 * rng.uniform(-1, 1, (nz, nx))
-    if kind == "not dominant":
-        Dxz[2:5, 3:6] = 1.5
-    for D in (Dxx, Dzz, Dxz):
-        D[-2:] = 0.0
-    terms, n_bad = _diffusion.split_tensor({"D_xx": Dxx, "D_zz": Dzz, "D_xz": Dxz}, 2)
-    assert (n_bad > 0) == (kind == "not dominant")
-    return _diffusion.operator(terms, (nz, nx), 0.5).tocsc()
 
 
 @pytest.mark.parametrize("kind", ["void", "tensor", "not dominant"])

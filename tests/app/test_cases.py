@@ -17,7 +17,7 @@ import spotpde
 from spotpde.app import cases
 from spotpde.app.cases import DEFAULTS, dump_toml, load_case
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CASE_FILES = sorted((ROOT / "cases").glob("*.toml"))
 
 INTERFACE_TOML = """

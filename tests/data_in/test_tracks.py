@@ -14,7 +14,7 @@ from hypothesis import given, settings, strategies as st
 
 from spotpde import tracks as T
 
-DATA = Path(__file__).parent / "data"
+DATA = Path(__file__).parents[1] / "data"
 
 
 def test_trackpy_csv_in_pixels_with_image_rows():

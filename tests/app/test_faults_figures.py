@@ -35,7 +35,7 @@ from test_cli import SMALL, fake_dataset
 
 from conftest import FIELDS
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PNG = b"\x89PNG\r\n\x1a\n"
 OLD = b"the user's old figure, which must survive"
 

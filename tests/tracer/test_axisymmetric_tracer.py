@@ -153,7 +153,7 @@ def test_void_model_3d_brownian_bridge_steady():
     """Steady solve of the void propagator from a release on the axis over a point orifice
     (3D void density, b_par = 0): P_height at height z is a 2D Gaussian with variance
     ``2 b z (z0 - z)/z0`` per component (averaged over the released blob); the exits sum
-    to 1 and G >= 0. Floor at z = 3, as the Cartesian test (tests/test_steady.py)."""
+    to 1 and G >= 0. Floor at z = 3, as the Cartesian test (tests/tracer/test_steady.py)."""
     h = 0.5
     g = _axi_grid(h, walls="open", radius=16.0, z=(3.0, 23.0))
     Z, R = g.mesh()

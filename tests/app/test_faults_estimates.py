@@ -28,7 +28,7 @@ from spotpde.app.cli import main
 from spotpde.errors import CaseError
 from spotpde.fields import _passage, kernels
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 #: a 20 x 20 grid
 SMALL = """

@@ -24,7 +24,7 @@ from spotpde.app._outputs import held_signals
 
 from conftest import FIELDS
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 #: the same with a short tracer: frames streamed by a FrameWriter, finished by finish()
 TRACER = FIELDS + """

@@ -12,7 +12,7 @@ tests let through (docs/montecarlo.md, section 9, lists them and the mutation pa
 * the 3D wall layer of the rule-1 drift: for a uniform spot density its value at the
   middle of a wall is the 2D one (the kernel integrated over the wall's tangential
   directions is the same), and the 2D one is checked against the exact discrete-step
-  average in tests/test_coefficients.py.
+  average in tests/fields/test_coefficients.py.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ def test_pair_diffusivity_is_symmetric_and_adds_one_particle_diffusivities():
     # with the one-particle fields of the same kernel (r1 is 1.9 d from a wall)
     # mean field: pairs share a spot only where their kernels overlap (in the discrete
     # model a spot that passes one particle rises on and may pass the other: the passage
-    # cross term reaches far vertically; tests/test_passage.py)
+    # cross term reaches far vertically; tests/fields/test_passage.py)
     f = C.particle_fields(grid, rho, spots, kernel, rule=0.5, walls="truncate",
                           diffusivity="mean-field")
     MF = {"diffusivity": "mean-field"}

@@ -16,7 +16,7 @@ from spotpde.density import noise, spot_density, traffic
 from spotpde.grid import Grid
 from spotpde.parameters import Orifice, Spots
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 GS = T.FLUXES["greenshields"]
 ENV = {**os.environ, "PYTHONPATH": os.pathsep.join(
     [str(ROOT)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])}

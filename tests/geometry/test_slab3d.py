@@ -27,7 +27,7 @@ from spotpde import coefficients, kernels, spot_density
 from spotpde.grid import Grid
 from spotpde.parameters import Orifice, Spots
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def slab_data(spacing: float = 1.0) -> dict:

@@ -32,7 +32,7 @@ from spotpde.app import io as sio
 from spotpde.app.cases import estimate_bytes, kernel_halfwidths, load_case, validate
 from conftest import FIELDS, session_dir
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 #: the same with a tracer that runs for a long time (for the signals)
 LONG = FIELDS + """

@@ -52,7 +52,7 @@ ZBINS = np.array([10.0, 20.0, 35.0, 55.0])   # start heights: converging ... plu
 
 def silo_case():
     """``cases/montecarlo_layers.toml`` on a 0.5 d grid."""
-    path = Path(__file__).resolve().parent.parent / "cases" / "montecarlo_layers.toml"
+    path = Path(__file__).resolve().parents[2] / "cases" / "montecarlo_layers.toml"
     case = spotpde.load_case(str(path))
     data = copy.deepcopy(case.data)
     data["domain"]["spacing"] = 0.5

@@ -300,7 +300,7 @@ def test_from_case_runs_the_slab3d_case():
 
     import spotpde
 
-    case = spotpde.load_case(pathlib.Path(__file__).parents[1] / "cases" / "slab3d.toml")
+    case = spotpde.load_case(pathlib.Path(__file__).parents[2] / "cases" / "slab3d.toml")
     r = mc.from_case(case, t_end=3.0, tracked=[0, 1, 2], seed=1)
     n = 50 * 100 * 8                      # the simple cubic lattice of the 50 x 100 x 8 d slab
     assert r.initial.shape == r.final.shape == (n, 3)

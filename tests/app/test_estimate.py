@@ -91,7 +91,7 @@ def test_multirate_and_auto_estimates_are_the_solvers(monkeypatch):
     """The void model next to a point orifice: multirate, and auto once the explicit run
     counts as long (threshold lowered), take the estimated steps and split."""
     from spotpde.tracer import _solve
-    from test_implicit_tracer import _void
+    from _problems import void_problem as _void
     grid, fields, P0 = _void(0.25)
     explicit = estimate.tracer_steps(grid, fields, 20.0, 3, stepping="auto")
     assert explicit["stepping"] == "explicit"           # a short run stays explicit
@@ -116,7 +116,7 @@ def test_choose_stepping_keeps_short_transient_and_even_runs_explicit():
     from spotpde.tracer import _advection, _implicit
     from spotpde.tracer._solve import (AUTO_IMEX_STEPS, DEFAULT_SPLIT, MAX_AUTO_SPLIT,
                                        choose_stepping)
-    from test_implicit_tracer import _void
+    from _problems import void_problem as _void
     grid, fields, _ = _void(0.25)
     faces = _advection.face_velocities(fields, grid.walls, np.ones(grid.shape[1:], bool))
     ratio = _implicit.auto_split(faces, grid.spacing)

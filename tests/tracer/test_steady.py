@@ -3,7 +3,7 @@
 G = int_0^inf P dt solves -L G = P0. Checks: it is the limit of the time-stepped solver
 (same linear face values: to the undrained remainder; the hybrid scheme against
 time-stepped WENO5: to the discretisation error; the default limited scheme:
-tests/test_steady_limited.py), the void model's Brownian bridge, the
+tests/tracer/test_steady_limited.py), the void model's Brownian bridge, the
 mean exit time against the time-stepped integral of the mass, exit probabilities
 summing to the initial mass through every kind of boundary, positivity, 3D, and the
 case/pipeline/CLI integration.
@@ -35,7 +35,7 @@ def _moments(ph, x, h):
 
 @pytest.fixture(scope="module")
 def void_setup():
-    """Void-model fields of a point orifice, floor at z = 3 (as tests/test_void_tracer.py)."""
+    """Void-model fields of a point orifice, floor at z = 3 (as tests/tracer/test_void_tracer.py)."""
     h = 0.5
     grid = Grid(2, (-16.0, 16.0), (3.0, 23.0), h, walls="open")
     Z, X = grid.mesh()

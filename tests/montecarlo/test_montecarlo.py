@@ -377,7 +377,7 @@ def test_from_case_runs_the_layered_silo_case():
 
     import pathlib
 
-    case = spotpde.load_case(pathlib.Path(__file__).parents[1] / "cases" / "quasi2d_layers.toml")
+    case = spotpde.load_case(pathlib.Path(__file__).parents[2] / "cases" / "quasi2d_layers.toml")
     r = mc.from_case(case, tracked="all", t_end=20.0, records=2, seed=1)
     assert r.rule == case.rule and r.kernel.V1 == pytest.approx(case.kernel.V1)
     f = mc.particle_frames(r, layer_spacing=6.0)

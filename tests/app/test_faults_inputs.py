@@ -31,9 +31,9 @@ from spotpde.errors import CaseError
 from spotpde.fields import kernels
 from spotpde.tracer import _linsolve
 from spotpde.tracer._extrapolation import LIMIT_MARGIN, Extrapolation
-from test_linsolve import _diffusion_operator
+from _problems import diffusion_operator as _diffusion_operator
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 SMALL = """
 [domain]
@@ -415,7 +415,7 @@ def test_the_suite_leaves_nothing_in_tmp(tmp_path):
     proc = subprocess.run(
         [sys.executable, "-m", "pytest", "-q", "-n", "2", "-p", "no:cacheprovider",
          "-p", "no:randomly", f"--basetemp={tmp_path / 'basetemp'}", "-k", "tmp_probe",
-         "tests/test_faults_inputs.py", "tests/test_faults.py", "tests/test_sweep.py"],
+         "tests/app/test_faults_inputs.py", "tests/app/test_faults.py", "tests/app/test_sweep.py"],
         cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "2 passed" in proc.stdout, proc.stdout

@@ -24,7 +24,7 @@ from spotpde import montecarlo as mc
 from spotpde.grid import Grid
 from spotpde.parameters import Orifice, Spots
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 NSIG = 4.0
 B = 1.3
 

@@ -21,7 +21,7 @@ import pytest
 
 import spotpde.tracks
 
-DEM = Path(__file__).resolve().parents[1] / "validation" / "dem"
+DEM = Path(__file__).resolve().parents[2] / "validation" / "dem"
 REFERENCE = DEM / "data" / "silo2d"
 sys.path.insert(0, str(DEM))
 import lammps_dump  # noqa: E402

@@ -15,30 +15,14 @@ import pytest
 import scipy.sparse.linalg as spla
 
 from spotpde import tracer
-from spotpde._roundoff import clip_roundoff
-from spotpde.app import pipeline
-from spotpde.app.cases import load_case
-from spotpde.density import spot_density
 from spotpde.grid import Grid
 from spotpde.tracer import _implicit
+
+from _problems import void_problem as _void
 
 B = 1.3
 
 
-def _void(h, half=8.0, top=16.0):
-    """Void-model fields of a point orifice at the centre of the floor (open sides), a
-    blob released at (1, 10): the cells next to the orifice are the fast ones."""
-    case = load_case({
-        "domain": {"dims": 2, "x": [-half, half], "z": [0.0, top], "spacing": h,
-                   "walls": "open"},
-        "orifice": {"x": 0.0, "width": 0.0, "rate": 1.2732}, "spots": {"b": B},
-        "kernel": {"shape": "uniform", "size": 0.5, "volume": 0.7854, "rule": 1.0},
-        "tracer": {"model": "void", "start": {"x": 1.0, "z": 10.0, "width": 1.0},
-                   "t_end": 1.0}})
-    grid = case.grid
-    rho = clip_roundoff(spot_density.solve(grid, case.orifice, case.spots))
-    return (grid, pipeline.case_fields(case, rho),
-            pipeline.initial_density(grid, case.tracer.start))
 
 
 def _l1(a, b, grid):

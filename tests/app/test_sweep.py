@@ -22,7 +22,7 @@ from spotpde.app import io as sio
 from spotpde.errors import CaseError, NumericalError
 from conftest import session_dir
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 _CACHE = str(session_dir("sweep-cache"))   # removed with the session (conftest)
 
 BASE = {

@@ -20,7 +20,7 @@ from spotpde.app import cli, pipeline
 from spotpde.app import io as sio
 from spotpde.app.cases import load_case
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CASE_FILES = sorted((ROOT / "cases").glob("*.toml"))
 
 SMALL = """
