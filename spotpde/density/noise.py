@@ -49,12 +49,17 @@ class OrnsteinUhlenbeck:
         self._e = np.exp(-self.dt / tau)
 
     def _extend(self, n: int) -> None:
-        while self._x.size < n:
-            z = self._rng.standard_normal(_BLOCK)
-            s = np.sqrt(1.0 - self._e ** 2)
-            # x_i = e x_{i-1} + s z_i, started from the last node (a first-order filter)
-            x, _ = lfilter([s], [1.0, -self._e], z, zi=[self._e * self._x[-1]])
-            self._x = np.concatenate([self._x, x])
+        """Nodes up to index ``n - 1``, drawn in whole blocks of ``_BLOCK`` (so the path
+        does not depend on how often it was asked for), in one filter pass: linear in
+        the nodes added."""
+        if self._x.size >= n:
+            return
+        blocks = -(-(n - self._x.size) // _BLOCK)
+        z = self._rng.standard_normal(blocks * _BLOCK)
+        s = np.sqrt(1.0 - self._e ** 2)
+        # x_i = e x_{i-1} + s z_i, started from the last node (a first-order filter)
+        x, _ = lfilter([s], [1.0, -self._e], z, zi=[self._e * self._x[-1]])
+        self._x = np.concatenate([self._x, x])
 
     def __call__(self, t):
         """``X(t)`` for a time or an array of times (>= 0)."""
