@@ -173,24 +173,63 @@ def pair_separation(source, case=None, *, contact: float = 1.1, separation: floa
     s_attrs = units("1", "fraction of initially touching pairs still closer than the separation")
     m_attrs = units("d", "mean cage-breaking fall restricted to the fall grid")
     d_attrs = units("d", "median cage-breaking fall")
+    meta = (attrs, s_attrs, m_attrs, d_attrs)
     if not is_tracks(source):
-        kernel, b, b_par, lam, diff = _model_params(case)
-        f_end = None if falls is None else float(np.max(falls))
-        # the grains' hard core is one diameter; ``contact`` only selects the data's pairs
-        res = pair.cage_breaking(kernel, b, lam, b_par, diff, contact=1.0,
-                                 separation=separation, start="contact", fall_end=f_end)
-        grid_f = np.linspace(0.0, float(res["fall"].values[-1]), 40) \
-            if falls is None else np.asarray(falls, float)
-        S = np.interp(grid_f, res["fall"].values, res["survival"].values)
-        mean, median = _summaries(grid_f, S)
-        ds = xr.Dataset({"survival": ("fall", S, s_attrs), "mean_fall": ((), mean, m_attrs),
-                         "median_fall": ((), median, d_attrs)},
-                        coords={"fall": ("fall", grid_f, units("d", "fall of the pair"))}, attrs=attrs)
-        return ds
+        return _model_survival(case, separation, falls, meta)
     x, z, t = positions(source)
     x0, x1, z0, z1 = _region(grid, region)
     starts = check_positive("starts", starts, integer=True)
     first = np.unique(np.linspace(0, t.size - 2, min(starts, t.size - 1)).astype(int))
+    f, ev, ts = _pair_events(x, z, t, first, contact, separation, (x0, x1, z0, z1))
+    blk = block_of(ts, t, blocks)
+    if falls is None:
+        order = np.sort(f)
+        f_max = order[-20] if order.size > 20 else order[-1]
+        falls = np.linspace(0.0, max(f_max, 1e-9), 40)
+    grid_f = np.asarray(falls, float)
+
+    def stats(mask):
+        S = _kaplan_meier(f[mask], ev[mask], grid_f)
+        return S, *_summaries(grid_f, S)
+
+    S, mean, median = stats(np.ones(f.size, bool))
+    reps = [stats(blk != b) for b in range(blocks)]
+    ds = xr.Dataset(coords={"fall": ("fall", grid_f, units("d", "fall of the pair"))},
+                    attrs={**attrs, "blocks": blocks, "pairs": int(f.size), "broken": int(ev.sum())})
+    for name, value, rep, a in (("survival", S, [r[0] for r in reps], s_attrs),
+                                ("mean_fall", mean, [r[1] for r in reps], m_attrs),
+                                ("median_fall", median, [r[2] for r in reps], d_attrs)):
+        rep = np.asarray(rep, float)
+        se = np.sqrt((blocks - 1) / blocks * np.nansum((rep - np.nanmean(rep, axis=0)) ** 2, axis=0))
+        with_errors(ds, name, ("fall",) if name == "survival" else (), value, se, rep, a)
+    return ds
+
+
+def _model_survival(case, separation, falls, meta) -> xr.Dataset:
+    """:func:`pair_separation` of a model: the survival curve of ``pair.cage_breaking`` for
+    the case's kernel, ``b``, rule and diffusivity, on the data's falls when given."""
+    attrs, s_attrs, m_attrs, d_attrs = meta
+    kernel, b, b_par, lam, diff = _model_params(case)
+    f_end = None if falls is None else float(np.max(falls))
+    # the grains' hard core is one diameter; ``contact`` only selects the data's pairs
+    res = pair.cage_breaking(kernel, b, lam, b_par, diff, contact=1.0,
+                             separation=separation, start="contact", fall_end=f_end)
+    grid_f = np.linspace(0.0, float(res["fall"].values[-1]), 40) \
+        if falls is None else np.asarray(falls, float)
+    S = np.interp(grid_f, res["fall"].values, res["survival"].values)
+    mean, median = _summaries(grid_f, S)
+    ds = xr.Dataset({"survival": ("fall", S, s_attrs), "mean_fall": ((), mean, m_attrs),
+                     "median_fall": ((), median, d_attrs)},
+                    coords={"fall": ("fall", grid_f, units("d", "fall of the pair"))}, attrs=attrs)
+    return ds
+
+
+def _pair_events(x, z, t, first, contact, separation, region):
+    """Each pair of tracked particles closer than ``contact`` (d) at a start frame in
+    ``first``, with its midpoint in ``region``: its fall (d) until the pair is
+    ``separation`` apart (``event``) or one of them is lost (censored), and its start
+    time. Returns ``(fall, event, start time)`` arrays, one entry per pair."""
+    x0, x1, z0, z1 = region
     rows = []
     for k in first:
         ok = np.isfinite(x[:, k]) & np.isfinite(z[:, k])
@@ -219,26 +258,4 @@ def pair_separation(source, case=None, *, contact: float = 1.1, separation: floa
         raise ValueError(f"contact: no pair of tracked particles closer than {contact} d "
                          "in the region at any start frame")
     data = np.concatenate(rows)
-    f, ev, ts = data[:, 0], data[:, 1].astype(bool), data[:, 2]
-    blk = block_of(ts, t, blocks)
-    if falls is None:
-        order = np.sort(f)
-        f_max = order[-20] if order.size > 20 else order[-1]
-        falls = np.linspace(0.0, max(f_max, 1e-9), 40)
-    grid_f = np.asarray(falls, float)
-
-    def stats(mask):
-        S = _kaplan_meier(f[mask], ev[mask], grid_f)
-        return S, *_summaries(grid_f, S)
-
-    S, mean, median = stats(np.ones(f.size, bool))
-    reps = [stats(blk != b) for b in range(blocks)]
-    ds = xr.Dataset(coords={"fall": ("fall", grid_f, units("d", "fall of the pair"))},
-                    attrs={**attrs, "blocks": blocks, "pairs": int(f.size), "broken": int(ev.sum())})
-    for name, value, rep, a in (("survival", S, [r[0] for r in reps], s_attrs),
-                                ("mean_fall", mean, [r[1] for r in reps], m_attrs),
-                                ("median_fall", median, [r[2] for r in reps], d_attrs)):
-        rep = np.asarray(rep, float)
-        se = np.sqrt((blocks - 1) / blocks * np.nansum((rep - np.nanmean(rep, axis=0)) ** 2, axis=0))
-        with_errors(ds, name, ("fall",) if name == "survival" else (), value, se, rep, a)
-    return ds
+    return data[:, 0], data[:, 1].astype(bool), data[:, 2]

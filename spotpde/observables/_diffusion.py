@@ -22,12 +22,25 @@ particle velocity), averaged with the data's sample counts.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 import xarray as xr
 
-from ._common import (BLOCKS, block_of, case_for, check_positive, grid_of, is_tracks,
-                      jackknife, model_velocity, positions, sample, units, with_errors)
+from ._common import (
+    BLOCKS,
+    block_of,
+    case_for,
+    check_positive,
+    grid_of,
+    is_tracks,
+    jackknife,
+    model_velocity,
+    positions,
+    sample,
+    units,
+    with_errors,
+)
 from ._velocity import grid_active, velocity_field
 
 __all__ = ["diffusion", "displacement_growth", "crossings", "path_residuals"]
@@ -185,34 +198,64 @@ def diffusion(source, case=None, *, fall: float = 1.0, bins=(5.0, 5.0), region=N
              "b_p_par": units("d", "vertical diffusion length per unit fall, D_zz/|u_z|"),
              "Pe_x": units("1", "horizontal Peclet number d/b_p"),
              "Pe_z": units("1", "vertical Peclet number d/b_p_par")}
+    bins = _Binning(grid, fall, ez, ex, (x0, x1, z0, z1), attrs, names)
     if not is_tracks(source):
-        u = model_velocity(source, case)
-        speed = np.where(u["u_z"] < 0, -u["u_z"], np.nan)
-        weights = (like["segment_histogram"].values if like is not None
-                   else grid_active(grid).astype(float))
-        weights = weights * (((grid.x >= x0) & (grid.x <= x1))[None, :]
-                             & ((grid.z >= z0) & (grid.z <= z1))[:, None])
-        ds = xr.Dataset(coords=_bin_coords(ez, ex), attrs=attrs)
-        Z, X = np.meshgrid(grid.z, grid.x, indexing="ij")
-        index = _bin_index(ez, ex, Z.ravel(), X.ravel())
-        nb = (ez.size - 1) * (ex.size - 1)
-        bias = _estimator_bias(u, speed, velocity, fall)
-        focus = _focusing(grid, u, speed, fall)
-        for name, comp in (("b_p", "D_xx"), ("b_p_par", "D_zz")):
-            val = np.asarray(source[comp].values, float) / speed * focus[name]
-            good = np.isfinite(val) & (weights > 0)
-            mean = _bin_mean(index, nb, val, weights, good)
-            if bias is not None:   # what the data's own mean flow adds to the estimator
-                e = bias[name]
-                ok = good & np.isfinite(e)
-                m1 = _bin_mean(index, nb, e, weights, ok)
-                m2 = _bin_mean(index, nb, e * e, weights, ok)
-                mean = mean + np.nan_to_num(m2 - m1 * m1) / (2.0 * fall)
-            ds[name] = (("z_bin", "x_bin"), mean.reshape(ez.size - 1, ex.size - 1), names[name])
-        with np.errstate(divide="ignore"):
-            ds["Pe_x"] = (("z_bin", "x_bin"), 1.0 / ds["b_p"].values, names["Pe_x"])
-            ds["Pe_z"] = (("z_bin", "x_bin"), 1.0 / ds["b_p_par"].values, names["Pe_z"])
-        return ds
+        return _model_diffusion(source, case, bins, velocity, like)
+    return _tracks_diffusion(source, case, bins, velocity, blocks, kwargs)
+
+
+class _Binning(NamedTuple):
+    """What both measurements of :func:`diffusion` share: the grid, the fall (d) between
+    the cutting heights, the bin edges ``ez``, ``ex`` (d), the region ``(x0, x1, z0, z1)``
+    (d), and the result's attributes and variable metadata."""
+
+    grid: object
+    fall: float
+    ez: np.ndarray
+    ex: np.ndarray
+    region: tuple
+    attrs: dict
+    names: dict
+
+
+def _model_diffusion(source, case, bins: _Binning, velocity, like) -> xr.Dataset:
+    """:func:`diffusion` of a model result: ``D_xx / |u_z|`` and ``D_zz / |u_z|`` averaged
+    over each bin (weighted by the tracks' segments when ``like`` is given), with the
+    focusing and the estimator's bias that the tracks' own measurement carries."""
+    grid, fall, ez, ex, (x0, x1, z0, z1), attrs, names = bins
+    u = model_velocity(source, case)
+    speed = np.where(u["u_z"] < 0, -u["u_z"], np.nan)
+    weights = (like["segment_histogram"].values if like is not None
+               else grid_active(grid).astype(float))
+    weights = weights * (((grid.x >= x0) & (grid.x <= x1))[None, :]
+                         & ((grid.z >= z0) & (grid.z <= z1))[:, None])
+    ds = xr.Dataset(coords=_bin_coords(ez, ex), attrs=attrs)
+    Z, X = np.meshgrid(grid.z, grid.x, indexing="ij")
+    index = _bin_index(ez, ex, Z.ravel(), X.ravel())
+    nb = (ez.size - 1) * (ex.size - 1)
+    bias = _estimator_bias(u, speed, velocity, fall)
+    focus = _focusing(grid, u, speed, fall)
+    for name, comp in (("b_p", "D_xx"), ("b_p_par", "D_zz")):
+        val = np.asarray(source[comp].values, float) / speed * focus[name]
+        good = np.isfinite(val) & (weights > 0)
+        mean = _bin_mean(index, nb, val, weights, good)
+        if bias is not None:   # what the data's own mean flow adds to the estimator
+            e = bias[name]
+            ok = good & np.isfinite(e)
+            m1 = _bin_mean(index, nb, e, weights, ok)
+            m2 = _bin_mean(index, nb, e * e, weights, ok)
+            mean = mean + np.nan_to_num(m2 - m1 * m1) / (2.0 * fall)
+        ds[name] = (("z_bin", "x_bin"), mean.reshape(ez.size - 1, ex.size - 1), names[name])
+    with np.errstate(divide="ignore"):
+        ds["Pe_x"] = (("z_bin", "x_bin"), 1.0 / ds["b_p"].values, names["Pe_x"])
+        ds["Pe_z"] = (("z_bin", "x_bin"), 1.0 / ds["b_p_par"].values, names["Pe_z"])
+    return ds
+
+
+def _tracks_diffusion(source, case, bins: _Binning, velocity, blocks, kwargs) -> xr.Dataset:
+    """:func:`diffusion` of tracks: the variance of each segment's departure from the mean
+    flow, per bin, with jackknife errors over ``blocks`` time blocks."""
+    grid, fall, ez, ex, (x0, x1, z0, z1), attrs, names = bins
     x, z, t = positions(source)
     vel = velocity if velocity is not None else velocity_field(source, case, blocks=blocks, **kwargs)
     X, T = crossings(x, z, t, fall, grid.z_range[1])
