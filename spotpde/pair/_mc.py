@@ -42,6 +42,35 @@ def _walk(xs, zs, nd, nu, sig, step):
 
 
 @njit(cache=True)
+def _push_apart(x1, z1, x2, z2, contact, conormal, angles, cxx, cxz, czz):
+    """The pair reflected off the hard core ``|r| = contact`` (d), about its midpoint: along
+    the separation (``conormal`` False) or along ``B n``, the relative diffusion tensor
+    at contact (tabulated in the angle of ``n``) times the normal, the reflection that
+    keeps an anisotropic diffusion's density flat at the wall; radial if that would
+    still leave the pair overlapping. Returns the new ``(x1, z1, x2, z2)``."""
+    rx, rz = x2 - x1, z2 - z1
+    r = math.sqrt(rx * rx + rz * rz)
+    cx, cz = 0.5 * (x1 + x2), 0.5 * (z1 + z2)
+    if conormal:
+        nx, nz = rx / r, rz / r
+        a = math.atan2(abs(nz), abs(nx))
+        bxx = np.interp(a, angles, cxx)
+        bzz = np.interp(a, angles, czz)
+        bxz = np.interp(a, angles, cxz) * (1.0 if nx * nz >= 0 else -1.0)
+        vx, vz = bxx * nx + bxz * nz, bxz * nx + bzz * nz
+        vn = vx * nx + vz * nz
+        d = 2.0 * (contact - r) / vn
+        rx, rz = rx + d * vx, rz + d * vz
+        if rx * rx + rz * rz < contact * contact:   # safeguard: radial
+            f = (2.0 * contact - r) / r
+            rx, rz = f * (x2 - x1), f * (z2 - z1)
+    else:
+        f = (2.0 * contact - r) / r
+        rx, rz = f * rx, f * rz
+    return cx - 0.5 * rx, cz - 0.5 * rz, cx + 0.5 * rx, cz + 0.5 * rz
+
+
+@njit(cache=True)
 def _replicas(n, seed, x0, z0, contact, separation, shape, size, size_v, amp, reach_h,
               reach_v, V1, b, lam, step, max_fall, conormal, angles, cxx, cxz, czz):
     np.random.seed(seed)
@@ -90,26 +119,8 @@ def _replicas(n, seed, x0, z0, contact, separation, shape, size, size_v, amp, re
                 rx, rz = x2 - x1, z2 - z1
                 r = math.sqrt(rx * rx + rz * rz)
                 if r < contact:
-                    cx, cz = 0.5 * (x1 + x2), 0.5 * (z1 + z2)
-                    if conormal:
-                        # push back along B n (B at contact, tabulated in angle)
-                        nx, nz = rx / r, rz / r
-                        a = math.atan2(abs(nz), abs(nx))
-                        bxx = np.interp(a, angles, cxx)
-                        bzz = np.interp(a, angles, czz)
-                        bxz = np.interp(a, angles, cxz) * (1.0 if nx * nz >= 0 else -1.0)
-                        vx, vz = bxx * nx + bxz * nz, bxz * nx + bzz * nz
-                        vn = vx * nx + vz * nz
-                        d = 2.0 * (contact - r) / vn
-                        rx, rz = rx + d * vx, rz + d * vz
-                        if rx * rx + rz * rz < contact * contact:   # safeguard: radial
-                            f = (2.0 * contact - r) / r
-                            rx, rz = f * (x2 - x1), f * (z2 - z1)
-                    else:
-                        f = (2.0 * contact - r) / r
-                        rx, rz = f * rx, f * rz
-                    x1, z1 = cx - 0.5 * rx, cz - 0.5 * rz
-                    x2, z2 = cx + 0.5 * rx, cz + 0.5 * rz
+                    x1, z1, x2, z2 = _push_apart(x1, z1, x2, z2, contact, conormal,
+                                                 angles, cxx, cxz, czz)
                 elif r >= separation:
                     escaped = True
                     break
