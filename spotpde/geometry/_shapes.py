@@ -31,20 +31,22 @@ AXISYMMETRIC_DIFFUSIVITY_KEYS = ("D_rr", "D_rz", "D_zz")
 BOX_ONLY = {
     "interacting spots": "interacting spots are solved in Cartesian boxes only, not on "
                          "axisymmetric or hopper grids",
-    "two-point statistics": "two-point statistics are implemented for rectangular "
-                            "Cartesian silos only (no axisymmetric grids, no hoppers)",
     "sde ensemble": "sde_ensemble walks particles in a Cartesian box; axisymmetric grids "
                     "and hoppers are not supported",
     "long-run stepping": "is for Cartesian boxes; axisymmetric and hopper grids step "
                          "explicitly (use 'explicit' or 'auto', or t_end = inf for the "
                          "geometrical propagator)",
-    "kinematic comparison": "the comparison fits Gaussian profiles across a Cartesian box; "
-                            "domain.coordinates = \"axisymmetric\" and domain.hopper_angle "
-                            "are not supported (see notebooks/hoppers.ipynb for hopper flows)",
     "cosine series": "cosine coefficients exist for Cartesian boxes only, not for "
                      "axisymmetric or hopper grids",
 }
-FEATURES = tuple(BOX_ONLY)
+#: Features boxes and cylinders support but a hopper (wedge, cone) refuses, with the reason.
+NOT_IN_HOPPERS = {
+    "kinematic comparison": "the comparison fits the Kinematic Model's closed forms (the "
+                            "slot's cosine series, the cylinder's Bessel series) across the "
+                            "silo, and a hopper's walls have none; domain.hopper_angle is not "
+                            "supported (see notebooks/hoppers.ipynb for hopper flows)",
+}
+FEATURES = tuple(BOX_ONLY) + tuple(NOT_IN_HOPPERS)
 
 
 class Support(NamedTuple):
@@ -258,9 +260,11 @@ class Geometry:
     def supports(self, feature: str) -> Support:
         """Whether this geometry supports ``feature`` (one of :data:`FEATURES`), with the
         reason when it does not."""
-        if feature not in BOX_ONLY:
+        if feature not in FEATURES:
             raise ValueError(f"feature: must be one of {', '.join(map(repr, FEATURES))}, "
                              f"got {feature!r}")
+        if feature in NOT_IN_HOPPERS:
+            return Support(False, NOT_IN_HOPPERS[feature]) if self.masked else Support(True)
         return Support(True) if self.uniform_cells else Support(False, BOX_ONLY[feature])
 
     def require(self, feature: str, name: str) -> None:
