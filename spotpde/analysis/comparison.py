@@ -70,9 +70,15 @@ class KinematicComparison:
         streamlines_spot, streamlines_kin: paths ``(n, dims)`` (columns ``x, [y,] z``).
         streamline_shift: per start, ``|x_spot - x_kin|`` at the height ``shift_height``.
         shift_height: where the streamlines are compared, d.
+        horizontal: the horizontal coordinate, ``"x"`` or ``"r"`` (a cylinder).
 
     All per-height numbers except ``flux_deficit`` use the columns farther than the
     kernel's horizontal reach from the side walls (3D: the plane through the orifice).
+    In a cylinder (``domain.coordinates = "axisymmetric"``) the profiles are radial: the
+    rings farther than the reach from the wall ``r = a`` (the axis is no wall), norms and
+    least squares weighted by the ring areas ``2 pi r h``, widths from the Fourier-Bessel
+    series (:func:`spotpde.density.kinematic.fit_radial_profile`), the flux through the
+    whole cross-section ``integral 2 pi r v dr``.
     """
 
     rule: float
@@ -94,6 +100,7 @@ class KinematicComparison:
     streamlines_kin: list
     streamline_shift: np.ndarray
     shift_height: float
+    horizontal: str = "x"
 
     def summary(self) -> dict[str, float]:
         """Medians over the compared heights, and the largest streamline shift."""
@@ -150,7 +157,8 @@ def _compared_cols(grid: Grid, kernel) -> np.ndarray:
     as ``flux_deficit``)."""
     reach_h = float(kernel.reach[0])
     x0, x1 = grid.x_range
-    return np.nonzero((grid.x - x0 > reach_h) & (x1 - grid.x > reach_h))[0]
+    low = grid.x - x0 > reach_h if not grid.geometry.has_axis else True   # the axis: no wall
+    return np.nonzero(low & (x1 - grid.x > reach_h))[0]
 
 
 def case_problems(case, rules: Sequence[float] = ()) -> list[str]:
@@ -234,8 +242,9 @@ def _row(grid: Grid, a: np.ndarray, y_index: int) -> np.ndarray:
     return a if grid.dims == 2 else a[:, y_index, :]
 
 
-def _norm_rows(a: np.ndarray) -> np.ndarray:
-    return np.sqrt(np.sum(a * a, axis=-1))
+def _norm_rows(a: np.ndarray, w=1.0) -> np.ndarray:
+    """Norm of each row, weighted by ``w`` (a cylinder's ring areas; 1 in a box)."""
+    return np.sqrt(np.sum(w * a * a, axis=-1))
 
 
 def _path_x_at(path: np.ndarray, z: float) -> float:
@@ -318,23 +327,28 @@ def compare_with_kinematic(case_or_parts, rule: float | None = None, *, z_min: f
     sel = np.ix_(rows, cols)
     full_v_spot = _row(grid, -flow["u_z"], yi)
     horizontal_axes = tuple(range(1, grid.dims))
-    flux_deficit = 1.0 - (-flow["u_z"][rows]).sum(axis=horizontal_axes) * h ** (grid.dims - 1) / (
-        V1 * orifice.rate_at(0.0))
+    curved = grid.geometry.curved       # a cylinder: radial profiles, ring-area weights
+    flux_deficit = 1.0 - (-flow["u_z"][rows] * grid.geometry.horizontal_measures).sum(
+        axis=horizontal_axes) / (V1 * orifice.rate_at(0.0))
+    w = grid.geometry.horizontal_measures[cols] if curved else 1.0
+    hkey = grid.geometry.drift_keys[0]
     v_spot = full_v_spot[sel]
     v_kin = _row(grid, -kin["u_z"], yi)[sel]
-    ux_spot = _row(grid, flow["u_x"], yi)[sel]
-    ux_kin = _row(grid, kin["u_x"], yi)[sel]
-    dx_v_spot = np.gradient(full_v_spot, h, axis=-1, edge_order=2)[sel]
+    ux_spot = _row(grid, flow[hkey], yi)[sel]
+    ux_kin = _row(grid, kin[hkey], yi)[sel]
+    dx_v_spot = (_radial_gradient(full_v_spot, h) if curved
+                 else np.gradient(full_v_spot, h, axis=-1, edge_order=2))[sel]
     dz_v_spot = np.gradient(full_v_spot, h, axis=0, edge_order=2)[sel]
-    defect = _norm_rows(_row(grid, defect_field, yi)[sel]) / _norm_rows(dz_v_spot)
+    defect = _norm_rows(_row(grid, defect_field, yi)[sel], w) / _norm_rows(dz_v_spot, w)
 
-    speed_l2 = _norm_rows(v_spot - v_kin) / _norm_rows(v_kin)
-    horizontal_l2 = _norm_rows(ux_spot - ux_kin) / _norm_rows(ux_kin)
-    b_h = np.sum(ux_spot * dx_v_spot, axis=-1) / np.sum(dx_v_spot**2, axis=-1)
+    speed_l2 = _norm_rows(v_spot - v_kin, w) / _norm_rows(v_kin, w)
+    horizontal_l2 = _norm_rows(ux_spot - ux_kin, w) / _norm_rows(ux_kin, w)
+    b_h = np.sum(w * ux_spot * dx_v_spot, axis=-1) / np.sum(w * dx_v_spot**2, axis=-1)
     # s(z) of the Kinematic Model with this orifice and these walls fitted to each profile
     # (a Gaussian's width is biased by the walls and the slot); b = ds/dz
     if grid.dims == 2:
-        walled = [[kinematic.fit_profile(grid.x[cols], p, orifice, grid.x_range, grid.walls)[0]
+        fit = kinematic.fit_radial_profile if curved else kinematic.fit_profile
+        walled = [[fit(grid.x[cols], p, orifice, grid.x_range, grid.walls)[0]
                    for p in prof] for prof in (v_spot, v_kin)]
         w2_spot, w2_kin = (2.0 * np.asarray(sv) for sv in walled)
     else:
@@ -367,7 +381,16 @@ def compare_with_kinematic(case_or_parts, rule: float | None = None, *, z_min: f
         width2_kin=w2_kin, b_speed_spot=b_spot, b_speed_kin=b_kin, b_horizontal=b_h,
         horizontal_l2=horizontal_l2, defect=defect, flux_deficit=flux_deficit, starts=starts,
         streamlines_spot=paths_spot,
-        streamlines_kin=paths_kin, streamline_shift=shift, shift_height=shift_height)
+        streamlines_kin=paths_kin, streamline_shift=shift, shift_height=shift_height,
+        horizontal="r" if curved else "x")
+
+
+def _radial_gradient(v: np.ndarray, h: float) -> np.ndarray:
+    """``dv/dr`` of a field even across the axis: second order inside, ``(v_1 - v_0) /
+    2h`` at the first ring (as :func:`spotpde.density.kinematic.velocity`)."""
+    g = np.gradient(v, h, axis=-1, edge_order=2)
+    g[..., 0] = (v[..., 1] - v[..., 0]) / (2.0 * h)
+    return g
 
 
 def compare_rules(case_or_parts, rules: Sequence[float] = (0.5, 1.0), **kwargs
@@ -424,7 +447,8 @@ def plot_comparison(comparisons: Mapping[float, KinematicComparison], path=None)
         ax[2].plot(p[:, 0], p[:, -1], "k:", lw=1.2, label="kinematic" if j == 0 else None)
     ax[0].set(xlabel="z (d)", ylabel="relative L2 difference", title="spot vs kinematic")
     ax[1].set(xlabel="z (d)", ylabel="effective b (d)")
-    ax[2].set(xlabel="x (d)", ylabel="z (d)", title="streamlines (dotted: kinematic)")
+    ax[2].set(xlabel=f"{first.horizontal} (d)", ylabel="z (d)",
+              title="streamlines (dotted: kinematic)")
     for a in ax:
         a.legend(fontsize=7)
     if path is not None:
