@@ -22,6 +22,9 @@ so the mean flow is compressible (``div u_f != 0``) and its streamlines differ.
 L2 difference of the downward speeds, the effective ``b`` of Gaussian fits to both
 profiles, the effective ``b`` of the horizontal flux velocity (least-squares
 ``u_f,x = b_h d_x v_spot``), the incompressibility defect, and streamlines of both flows.
+In a cylinder the same radially (ring-area weights, Fourier-Bessel fits:
+:func:`spotpde.density.kinematic.cylinder_profile`); hoppers are refused by name
+(``geometry.NOT_IN_HOPPERS``).
 """
 
 from __future__ import annotations

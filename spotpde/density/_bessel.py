@@ -82,14 +82,3 @@ def cylinder_profile(r, s, orifice, r_range: tuple[float, float] | None = None,
     terms = c * j0(np.multiply.outer(rr, k)) * np.exp(-np.multiply.outer(ss, k**2))
     return 1.0 / (np.pi * a * a) + terms.sum(axis=-1)
 
-
-def fit_radial_profile(r, v, orifice, r_range: tuple[float, float] | None = None,
-                       walls: str = "reflecting", **kwargs) -> tuple[float, float]:
-    """Fit a radial speed profile by the cylinder's Kinematic Model: ``v ~ A K(r; s)``.
-
-    :func:`spotpde.density.kinematic.fit_profile` with :func:`cylinder_profile` as ``K``
-    (same keywords). Returns ``(s, A)``: ``s = b z`` in d**2 and the flux ``A``.
-    """
-    from .kinematic import fit_profile
-
-    return fit_profile(r, v, orifice, r_range, walls, model=cylinder_profile, **kwargs)

@@ -27,7 +27,7 @@ from scipy.integrate import solve_ivp
 from ..grid import Grid
 from ..parameters import Orifice, Spots
 from . import _geometry, spot_density
-from ._bessel import cylinder_profile, fit_radial_profile
+from ._bessel import cylinder_profile
 
 __all__ = ["point_source", "slot_profile", "cylinder_profile", "fit_profile",
            "fit_radial_profile", "speed", "velocity", "streamlines"]
@@ -213,6 +213,13 @@ def fit_profile(x, v, orifice: Orifice, x_range: tuple[float, float] | None = No
                           method="bounded", options={"xatol": 1e-7})
     s = math.exp(res.x)
     return s, chi2(s)[1]
+
+
+def fit_radial_profile(r, v, orifice: Orifice, r_range: tuple[float, float] | None = None,
+                       walls: str = "reflecting", **kwargs) -> tuple[float, float]:
+    """:func:`fit_profile` of a cylinder's radial profile by :func:`cylinder_profile`
+    (``r_range = (0, a)``; same keywords). Returns ``(s, A)``: ``b z`` in d**2, the flux."""
+    return fit_profile(r, v, orifice, r_range, walls, model=cylinder_profile, **kwargs)
 
 
 def speed(grid: Grid, orifice: Orifice, b, progress=None) -> np.ndarray:
