@@ -88,7 +88,8 @@ def localise(grid: Grid, rho_s, spots, kernel, r1, r2, tensor: Mapping | None):
         tensor_box["D_xz"] = tensor_box["D_yz"] = 0.0
     else:
         rz = sample(rz)
-        tensor_box["D_xz"], tensor_box["D_yz"] = rz * sample.cos, rz * sample.sin
+        tensor_box["D_xz"], tensor_box["D_yz"] = (np.broadcast_to(rz * t, box.shape).copy()
+                                                  for t in (sample.cos, sample.sin))
     changes = {}
     for key in ("drift", "b", "b_par"):
         value = getattr(spots, key)
