@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 import spotpde
-from spotpde.geometry import (FEATURES, NOT_IN_HOPPERS, AxisymmetricGeometry, BoxGeometry,
-                              ConeGeometry, WedgeGeometry, geometry_of)
+from spotpde.geometry import (FEATURES, AxisymmetricGeometry, BoxGeometry, ConeGeometry,
+                              WedgeGeometry, geometry_of)
 from spotpde.grid import Grid, Hopper
 
 PACKAGE = pathlib.Path(spotpde.__file__).parent
@@ -133,14 +133,11 @@ def test_one_statement_of_what_each_shape_supports():
     for feature in FEATURES:
         assert g["box"].geometry.supports(feature).ok
         assert g["box3"].geometry.supports(feature) == (True, "")
-        refused = ("wedge", "cone") if feature in NOT_IN_HOPPERS else (
-            "axisymmetric", "wedge", "cone")
         for name in ("axisymmetric", "wedge", "cone"):
             s = g[name].geometry.supports(feature)
-            assert s.ok != (name in refused) and bool(s.reason) == (name in refused)
-    # lifted: two-point statistics everywhere, the kinematic comparison in cylinders
-    assert "two-point statistics" not in FEATURES
-    assert g["axisymmetric"].geometry.supports("kinematic comparison").ok
+            assert not s.ok and s.reason
+    # lifted: two-point statistics and the kinematic comparison work in every shape
+    assert "two-point statistics" not in FEATURES and "kinematic comparison" not in FEATURES
     with pytest.raises(ValueError, match="^spots.rho_max: interacting spots"):
         g["cone"].geometry.require("interacting spots", "spots.rho_max")
     g["box"].geometry.require("interacting spots", "spots.rho_max")

@@ -39,14 +39,7 @@ BOX_ONLY = {
     "cosine series": "cosine coefficients exist for Cartesian boxes only, not for "
                      "axisymmetric or hopper grids",
 }
-#: Features boxes and cylinders support but a hopper (wedge, cone) refuses, with the reason.
-NOT_IN_HOPPERS = {
-    "kinematic comparison": "the comparison fits the Kinematic Model's closed forms (the "
-                            "slot's cosine series, the cylinder's Bessel series) across the "
-                            "silo, and a hopper's walls have none; domain.hopper_angle is not "
-                            "supported (see notebooks/hoppers.ipynb for hopper flows)",
-}
-FEATURES = tuple(BOX_ONLY) + tuple(NOT_IN_HOPPERS)
+FEATURES = tuple(BOX_ONLY)
 
 
 class Support(NamedTuple):
@@ -260,11 +253,9 @@ class Geometry:
     def supports(self, feature: str) -> Support:
         """Whether this geometry supports ``feature`` (one of :data:`FEATURES`), with the
         reason when it does not."""
-        if feature not in FEATURES:
+        if feature not in BOX_ONLY:
             raise ValueError(f"feature: must be one of {', '.join(map(repr, FEATURES))}, "
                              f"got {feature!r}")
-        if feature in NOT_IN_HOPPERS:
-            return Support(False, NOT_IN_HOPPERS[feature]) if self.masked else Support(True)
         return Support(True) if self.uniform_cells else Support(False, BOX_ONLY[feature])
 
     def require(self, feature: str, name: str) -> None:
