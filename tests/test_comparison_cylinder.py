@@ -3,8 +3,9 @@
 The Fourier-Bessel series (spotpde/density/_bessel.py) against the unbounded closed form
 ``exp(-r**2 / (4 b z)) / (4 pi b z)`` where the wall is far, its flux through every
 height, its fit to the numerical solution; then the comparison of the spot model's mean
-flow with the kinematic one in a cylinder (the local identities of
-tests/test_comparison.py hold there too) and its command line.
+flow with the kinematic one in a cylinder and in hoppers (the local identities of
+tests/test_comparison.py hold there too, in a hopper on the cells whose kernel sees only
+material) and its command line.
 """
 
 from __future__ import annotations
