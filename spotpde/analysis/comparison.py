@@ -22,6 +22,9 @@ so the mean flow is compressible (``div u_f != 0``) and its streamlines differ.
 L2 difference of the downward speeds, the effective ``b`` of Gaussian fits to both
 profiles, the effective ``b`` of the horizontal flux velocity (least-squares
 ``u_f,x = b_h d_x v_spot``), the incompressibility defect, and streamlines of both flows.
+In a cylinder the same radially (ring-area weights, Fourier-Bessel fits:
+:func:`spotpde.density.kinematic.cylinder_profile`); in a hopper on the cells whose kernel
+sees only material (``_compare_geometry``; no width fits: NaN).
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from scipy.optimize import OptimizeWarning, curve_fit
 
+from . import _compare_geometry as _shape
 from ..fields import coefficients
 from ..density import kinematic, spot_density
 from ..grid import Grid
@@ -70,9 +74,17 @@ class KinematicComparison:
         streamlines_spot, streamlines_kin: paths ``(n, dims)`` (columns ``x, [y,] z``).
         streamline_shift: per start, ``|x_spot - x_kin|`` at the height ``shift_height``.
         shift_height: where the streamlines are compared, d.
+        horizontal: the horizontal coordinate, ``"x"`` or ``"r"`` (a cylinder).
 
     All per-height numbers except ``flux_deficit`` use the columns farther than the
     kernel's horizontal reach from the side walls (3D: the plane through the orifice).
+    In a cylinder (``domain.coordinates = "axisymmetric"``) the profiles are radial: the
+    rings farther than the reach from the wall ``r = a`` (the axis is no wall), norms and
+    least squares weighted by the ring areas ``2 pi r h``, widths from the Fourier-Bessel
+    series (:func:`spotpde.density.kinematic.fit_radial_profile`), the flux through the
+    whole cross-section ``integral 2 pi r v dr``. In a hopper (wedge, cone) each height
+    uses its cells farther than the reach plus a cell from the walls at the kernel's
+    lowest height; the widths and ``b_speed_*`` are NaN (no closed form between walls).
     """
 
     rule: float
@@ -94,6 +106,7 @@ class KinematicComparison:
     streamlines_kin: list
     streamline_shift: np.ndarray
     shift_height: float
+    horizontal: str = "x"
 
     def summary(self) -> dict[str, float]:
         """Medians over the compared heights, and the largest streamline shift."""
@@ -150,7 +163,8 @@ def _compared_cols(grid: Grid, kernel) -> np.ndarray:
     as ``flux_deficit``)."""
     reach_h = float(kernel.reach[0])
     x0, x1 = grid.x_range
-    return np.nonzero((grid.x - x0 > reach_h) & (x1 - grid.x > reach_h))[0]
+    low = grid.x - x0 > reach_h if not grid.geometry.has_axis else True   # the axis: no wall
+    return np.nonzero(low & (x1 - grid.x > reach_h))[0]
 
 
 def case_problems(case, rules: Sequence[float] = ()) -> list[str]:
@@ -172,11 +186,7 @@ def case_problems(case, rules: Sequence[float] = ()) -> list[str]:
     if bad:
         problems.append(f"--rules: each rule must be in ({lo:g}, {hi:g}] like kernel.rule, "
                         f"got {', '.join(f'{r:g}' for r in bad)}")
-    d, o, s = case.data["domain"], case.data["orifice"], case.data["spots"]
-    shape = case.grid.geometry.supports("kinematic comparison")
-    if not shape.ok:
-        key = "domain.hopper_angle" if d.get("hopper_angle") is not None else "domain.coordinates"
-        problems.append(f"{key}: {shape.reason}")
+    o, s = case.data["orifice"], case.data["spots"]
     if s.get("rho_max") is not None:
         problems.append("spots.rho_max: interacting spots have no steady state to compare "
                         "with the steady Kinematic Model; remove spots.rho_max (and "
@@ -196,10 +206,15 @@ def case_problems(case, rules: Sequence[float] = ()) -> list[str]:
         problems.append(f"domain.z: too short to compare: {rows.size} heights between 10 % "
                         "of the height and the kernel's vertical reach "
                         f"({float(kernel.reach[1]):g} d) below the top, need 3")
-    if _compared_cols(case.grid, kernel).size < 5:
+    cols = _compared_cols(case.grid, kernel)
+    if cols.size < 5:
         problems.append(f"domain.x: too narrow to compare: fewer than 5 columns farther "
                         f"than the kernel's reach ({float(kernel.reach[0]):g} d) from the "
                         "side walls")
+    elif rows.size >= 3 and _shape.hopper_cells(case.grid, kernel, rows, cols)[0].size < 3:
+        problems.append("domain.hopper_angle: the hopper is too narrow to compare: fewer "
+                        "than 3 heights with 5 columns farther than the kernel's reach "
+                        f"({float(kernel.reach[0]):g} d) inside its walls")
     return problems
 
 
@@ -234,8 +249,9 @@ def _row(grid: Grid, a: np.ndarray, y_index: int) -> np.ndarray:
     return a if grid.dims == 2 else a[:, y_index, :]
 
 
-def _norm_rows(a: np.ndarray) -> np.ndarray:
-    return np.sqrt(np.sum(a * a, axis=-1))
+def _norm_rows(a: np.ndarray, w=1.0) -> np.ndarray:
+    """Norm of each row, weighted by ``w`` (a cylinder's ring areas; 1 in a box)."""
+    return np.sqrt(np.sum(w * a * a, axis=-1))
 
 
 def _path_x_at(path: np.ndarray, z: float) -> float:
@@ -273,7 +289,6 @@ def compare_with_kinematic(case_or_parts, rule: float | None = None, *, z_min: f
         case; ``b`` must be uniform (the kinematic model's single ``b``).
     """
     grid, orifice, spots, kernel, case_rule, rho_s = _parts(case_or_parts)
-    grid.geometry.require("kinematic comparison", "case_or_parts")
     lam = float(case_rule if rule is None else rule)
     if np.ndim(spots.b) != 0 or np.ndim(spots.drift) != 0:
         raise ValueError("case_or_parts: spots.b and spots.drift must be uniform "
@@ -315,26 +330,39 @@ def compare_with_kinematic(case_or_parts, rule: float | None = None, *, z_min: f
     if cols.size < 5:
         raise ValueError(f"case_or_parts: the domain is too narrow for the kernel reach "
                          f"{reach_h:g} d to leave columns away from the walls")
+    rows, inside = _shape.hopper_cells(grid, kernel, rows, cols)   # (None: no hopper)
+    if rows.size < 3:
+        raise ValueError(f"case_or_parts: the hopper is too narrow for the kernel reach "
+                         f"{reach_h:g} d to leave 3 heights of 5 columns inside its walls")
     sel = np.ix_(rows, cols)
     full_v_spot = _row(grid, -flow["u_z"], yi)
     horizontal_axes = tuple(range(1, grid.dims))
-    flux_deficit = 1.0 - (-flow["u_z"][rows]).sum(axis=horizontal_axes) * h ** (grid.dims - 1) / (
-        V1 * orifice.rate_at(0.0))
+    curved = grid.geometry.curved       # a cylinder: radial profiles, ring-area weights
+    flux_deficit = 1.0 - (-flow["u_z"][rows] * grid.geometry.horizontal_measures).sum(
+        axis=horizontal_axes) / (V1 * orifice.rate_at(0.0))
+    w = grid.geometry.horizontal_measures[cols] if curved else 1.0
+    if inside is not None:          # a hopper: the cells beyond the reach from its walls
+        w = w * inside
+    hkey = grid.geometry.drift_keys[0]
     v_spot = full_v_spot[sel]
     v_kin = _row(grid, -kin["u_z"], yi)[sel]
-    ux_spot = _row(grid, flow["u_x"], yi)[sel]
-    ux_kin = _row(grid, kin["u_x"], yi)[sel]
-    dx_v_spot = np.gradient(full_v_spot, h, axis=-1, edge_order=2)[sel]
+    ux_spot = _row(grid, flow[hkey], yi)[sel]
+    ux_kin = _row(grid, kin[hkey], yi)[sel]
+    dx_v_spot = (_shape.radial_gradient(full_v_spot, h) if curved
+                 else np.gradient(full_v_spot, h, axis=-1, edge_order=2))[sel]
     dz_v_spot = np.gradient(full_v_spot, h, axis=0, edge_order=2)[sel]
-    defect = _norm_rows(_row(grid, defect_field, yi)[sel]) / _norm_rows(dz_v_spot)
+    defect = _norm_rows(_row(grid, defect_field, yi)[sel], w) / _norm_rows(dz_v_spot, w)
 
-    speed_l2 = _norm_rows(v_spot - v_kin) / _norm_rows(v_kin)
-    horizontal_l2 = _norm_rows(ux_spot - ux_kin) / _norm_rows(ux_kin)
-    b_h = np.sum(ux_spot * dx_v_spot, axis=-1) / np.sum(dx_v_spot**2, axis=-1)
+    speed_l2 = _norm_rows(v_spot - v_kin, w) / _norm_rows(v_kin, w)
+    horizontal_l2 = _norm_rows(ux_spot - ux_kin, w) / _norm_rows(ux_kin, w)
+    b_h = np.sum(w * ux_spot * dx_v_spot, axis=-1) / np.sum(w * dx_v_spot**2, axis=-1)
     # s(z) of the Kinematic Model with this orifice and these walls fitted to each profile
     # (a Gaussian's width is biased by the walls and the slot); b = ds/dz
-    if grid.dims == 2:
-        walled = [[kinematic.fit_profile(grid.x[cols], p, orifice, grid.x_range, grid.walls)[0]
+    if inside is not None:          # no closed form between a hopper's walls
+        w2_spot = w2_kin = np.full(rows.size, np.nan)
+    elif grid.dims == 2:
+        fit = kinematic.fit_radial_profile if curved else kinematic.fit_profile
+        walled = [[fit(grid.x[cols], p, orifice, grid.x_range, grid.walls)[0]
                    for p in prof] for prof in (v_spot, v_kin)]
         w2_spot, w2_kin = (2.0 * np.asarray(sv) for sv in walled)
     else:
@@ -349,7 +377,9 @@ def compare_with_kinematic(case_or_parts, rule: float | None = None, *, z_min: f
     shift_height = z0 + 0.25 * (z1 - z0) if shift_height is None else float(shift_height)
     xc = orifice.x
     half = 0.25 * (x1 - x0)
-    xs = np.linspace(max(x0 + h, xc - half), min(x1 - h, xc + half), n_streamlines)
+    xs = _shape.streamline_starts(grid, np.linspace(max(x0 + h, xc - half),
+                                                    min(x1 - h, xc + half), n_streamlines),
+                                  start_height, xc)
     if grid.dims == 2:
         starts = np.column_stack([xs, np.full_like(xs, start_height)])
     else:
@@ -367,7 +397,9 @@ def compare_with_kinematic(case_or_parts, rule: float | None = None, *, z_min: f
         width2_kin=w2_kin, b_speed_spot=b_spot, b_speed_kin=b_kin, b_horizontal=b_h,
         horizontal_l2=horizontal_l2, defect=defect, flux_deficit=flux_deficit, starts=starts,
         streamlines_spot=paths_spot,
-        streamlines_kin=paths_kin, streamline_shift=shift, shift_height=shift_height)
+        streamlines_kin=paths_kin, streamline_shift=shift, shift_height=shift_height,
+        horizontal="r" if curved else "x")
+
 
 
 def compare_rules(case_or_parts, rules: Sequence[float] = (0.5, 1.0), **kwargs
@@ -424,7 +456,8 @@ def plot_comparison(comparisons: Mapping[float, KinematicComparison], path=None)
         ax[2].plot(p[:, 0], p[:, -1], "k:", lw=1.2, label="kinematic" if j == 0 else None)
     ax[0].set(xlabel="z (d)", ylabel="relative L2 difference", title="spot vs kinematic")
     ax[1].set(xlabel="z (d)", ylabel="effective b (d)")
-    ax[2].set(xlabel="x (d)", ylabel="z (d)", title="streamlines (dotted: kinematic)")
+    ax[2].set(xlabel=f"{first.horizontal} (d)", ylabel="z (d)",
+              title="streamlines (dotted: kinematic)")
     for a in ax:
         a.legend(fontsize=7)
     if path is not None:

@@ -18,9 +18,10 @@ validator of :mod:`._schema`, each naming the key to change:
 * the tracer: ``t_end = inf`` only for steady spots, ``snapshots`` only for transient
   ones, a start blob inside the domain and at least h wide, layer bands of at least 2 h
   and less than twice the height;
-* ``[pair]``: a 2D domain, the point inside it;
+* ``[pair]``: a 2D domain, the point inside it and inside a hopper's walls (in the
+  material), in a cylinder a start at a horizontal distance ``pair.start.x >= 0``;
 * axisymmetric coordinates: ``dims = 2``, ``domain.x = [0, a]`` (the radius), the
-  orifice on the axis (``orifice.x = 0``), no interacting spots or ``[pair]`` table;
+  orifice on the axis (``orifice.x = 0``), no interacting spots;
 * a hopper (``domain.hopper_angle``): a 2D or axisymmetric domain, a uniform orifice
   (its edges are where the walls start), and walls that leave the floor open (a
   vertical hopper needs an orifice of width > 0).
@@ -176,6 +177,7 @@ def check_consistency(v: _Validator, data: dict) -> None:
         if p.get("z") is not None and not z0 < p["z"] < z1:
             v.bad("pair.z", f"must lie inside domain.z = ({_show(z0)}, {_show(z1)})",
                   p["z"])
+        _check_pair_in_material(v, data, p)
 
 
 def _check_depth(v: _Validator, d: dict) -> tuple[float, float]:
@@ -232,9 +234,6 @@ def _check_geometry(v: _Validator, data: dict) -> None:
         if "rho_max" in s:
             v.bad("spots.rho_max", "interacting spots are solved in Cartesian "
                   'coordinates only; use domain.coordinates = "cartesian"', s["rho_max"])
-        if data.get("pair") is not None:
-            v.bad("pair", 'needs domain.coordinates = "cartesian" (the pair solver is '
-                  "planar)", "axisymmetric")
     if "hopper_angle" not in d:
         return
     angle = d["hopper_angle"]
@@ -251,3 +250,21 @@ def _check_geometry(v: _Validator, data: dict) -> None:
         v.bad("orifice.width", "must be at least 2 * domain.spacing = "
               f"{_show(2 * d['spacing'])} with a hopper, so that the hopper's floor has "
               "open cells (the solvers resolve its walls cell by cell)", o["width"])
+
+
+def _check_pair_in_material(v: _Validator, data: dict, p: dict) -> None:
+    """``[pair]`` in the material: inside a hopper's walls at ``pair.z``; in a cylinder
+    ``pair.start.x`` is the pair's horizontal distance (``>= 0``)."""
+    d, o = data["domain"], data["orifice"]
+    start = p.get("start")
+    if (d.get("coordinates") == "axisymmetric" and isinstance(start, dict)
+            and start.get("x", 0.0) < 0):
+        v.bad("pair.start.x", "must be >= 0 in a cylinder (the horizontal distance of the "
+              "pair's separation; the pair is 3D)", start["x"])
+    if "hopper_angle" not in d or p.get("x") is None or p.get("z") is None:
+        return
+    half = 0.5 * o["width"] + (p["z"] - d["z"][0]) * math.tan(math.radians(d["hopper_angle"]))
+    if abs(p["x"] - o["x"]) > half:
+        v.bad("pair.x", f"lies outside the material: at pair.z = {p['z']:g} the hopper's "
+              f"walls are {half:.3g} d from orifice.x = {o['x']:g}; move the point inside "
+              "them", p["x"])

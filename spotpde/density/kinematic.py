@@ -12,7 +12,8 @@ orifice as they fall. ``v`` obeys the same equation as the steady spot flux
 ``v_s rho_s`` with ``D_par = 0``, so :func:`speed` reuses :mod:`spotpde.spot_density`
 (unit source rate, unit spot drift). Axisymmetric grids solve
 ``dv/dz = (b/r) d/dr (r dv/dr)`` with ``u_r = b dv/dr``; hoppers solve in the staircase
-(docs/spot_density.md section 9).
+(docs/spot_density.md section 9). Closed forms: :func:`slot_profile` (2D, cosine series),
+:func:`cylinder_profile` (a cylinder, Fourier-Bessel series; ``_bessel``).
 """
 
 from __future__ import annotations
@@ -26,8 +27,10 @@ from scipy.integrate import solve_ivp
 from ..grid import Grid
 from ..parameters import Orifice, Spots
 from . import _geometry, spot_density
+from ._bessel import cylinder_profile
 
-__all__ = ["point_source", "slot_profile", "fit_profile", "speed", "velocity", "streamlines"]
+__all__ = ["point_source", "slot_profile", "cylinder_profile", "fit_profile",
+           "fit_radial_profile", "speed", "velocity", "streamlines"]
 
 
 def point_source(x, z, b, dims: int = 2):
@@ -167,7 +170,8 @@ def slot_profile(x, s, orifice: Orifice, x_range: tuple[float, float] | None = N
 
 def fit_profile(x, v, orifice: Orifice, x_range: tuple[float, float] | None = None,
                 walls: str = "reflecting", *, se=None, broadening: float = 0.0,
-                s_range: tuple[float, float] = (1e-3, 1e6)) -> tuple[float, float]:
+                s_range: tuple[float, float] = (1e-3, 1e6), model=None
+                ) -> tuple[float, float]:
     """Fit a downward-speed profile by the Kinematic Model: ``v ~ A K(x; s + broadening)``.
 
     ``K`` is :func:`slot_profile` with the orifice's profile and the walls; the amplitude
@@ -180,6 +184,8 @@ def fit_profile(x, v, orifice: Orifice, x_range: tuple[float, float] | None = No
         x, v: positions (d) and speeds; NaN entries are ignored.
         orifice, x_range, walls: as :func:`slot_profile`.
         se: standard errors of ``v`` (weights ``1/se**2``), or None for equal weights.
+        model: ``K(x, s, orifice, x_range, walls)``; default :func:`slot_profile`
+            (:func:`cylinder_profile` for a cylinder's radial profile).
 
     Returns:
         ``(s, A)``; NaN if fewer than 4 finite points.
@@ -196,7 +202,7 @@ def fit_profile(x, v, orifice: Orifice, x_range: tuple[float, float] | None = No
     xv, vv = x[ok], v[ok]
 
     def chi2(s):
-        K = slot_profile(xv, s + broadening, orifice, x_range, walls)
+        K = (model or slot_profile)(xv, s + broadening, orifice, x_range, walls)
         A = np.sum(w * vv * K) / np.sum(w * K * K)
         return float(np.sum(w * (vv - A * K) ** 2)), float(A)
 
@@ -207,6 +213,13 @@ def fit_profile(x, v, orifice: Orifice, x_range: tuple[float, float] | None = No
                           method="bounded", options={"xatol": 1e-7})
     s = math.exp(res.x)
     return s, chi2(s)[1]
+
+
+def fit_radial_profile(r, v, orifice: Orifice, r_range: tuple[float, float] | None = None,
+                       walls: str = "reflecting", **kwargs) -> tuple[float, float]:
+    """:func:`fit_profile` of a cylinder's radial profile by :func:`cylinder_profile`
+    (``r_range = (0, a)``; same keywords). Returns ``(s, A)``: ``b z`` in d**2, the flux."""
+    return fit_profile(r, v, orifice, r_range, walls, model=cylinder_profile, **kwargs)
 
 
 def speed(grid: Grid, orifice: Orifice, b, progress=None) -> np.ndarray:

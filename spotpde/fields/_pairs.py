@@ -8,7 +8,9 @@ over the silo, with ``X(r, r) = D_p(r)``: the velocity correlation
 ``C^ab = X^ab(r1, r2) / sqrt(X^aa(r1, r1) X^bb(r2, r2))`` (dimensionless, the paper's
 eq. Cp) and the diffusivity of the separation of two tracers
 ``D^ab = D_p^ab(r1) + D_p^ab(r2) - 2 X^ab(r1, r2)`` (plus the passage correction).
-Points are ``(x, z)`` or ``(x, y, z)`` in d.
+Points are ``(x, z)`` or ``(x, y, z)`` in d. Hoppers and cylinders: the same quadrature
+on the local box of :mod:`._pairs_local` (the spots in the material; a cylinder's points
+``(x, y, z)`` or ``(r, z)`` and 3D Cartesian results).
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from . import _passage
+from . import _pairs_local, _passage
 from ._common import (_COMPONENTS, _SUBSAMPLE, _as_point, _check_inputs, _check_rule,
                       _is_zero, spot_diffusivity)
 from ..grid import DIFFUSIVITY_KEYS, Grid
@@ -82,8 +84,8 @@ def _cross_integrals(grid: Grid, rho_s: np.ndarray, D_s: Mapping, kernel, r1: np
 
 def _two_point_integrals(grid: Grid, rho_s, spots: Spots, kernel, r1, r2,
                          spot_diffusivity_tensor: Mapping | None):
-    """Checked inputs, then ``(X(r1, r2), X(r1, r1), X(r2, r2))`` of :func:`_cross_integrals`."""
-    grid.geometry.require("two-point statistics", "grid")
+    """Checked inputs, then ``(X(r1, r2), X(r1, r1), X(r2, r2))`` of :func:`_cross_integrals`
+    (on the box of :func:`._pairs_local.localise`)."""
     rho_s = _check_inputs(grid, rho_s, kernel)
     p1, p2 = _as_point(grid, r1, "r1"), _as_point(grid, r2, "r2")
     D_s = spot_diffusivity(grid, spots, spot_diffusivity_tensor)
@@ -108,13 +110,19 @@ def velocity_correlation(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, r1
         rho_s: spot density, grid-shaped.
         spots: spot parameters (``D_s``).
         kernel: influence kernel (``evaluate``, ``reach``).
-        r1, r2: points ``(x, z)`` or ``(x, y, z)`` in d.
+        r1, r2: points ``(x, z)`` or ``(x, y, z)`` in d; on an axisymmetric grid
+            ``(x, y, z)`` around the axis ``x = y = 0`` or ``(r, z)`` (read as
+            ``(r, 0, z)``), with 3D Cartesian results in that frame. Both must lie in the
+            material (ValueError naming ``r1`` / ``r2`` beyond a hopper's or a
+            cylinder's wall).
         spot_diffusivity_tensor: optional full ``D_s`` (see :func:`particle_fields`).
 
     Returns:
         ``{"C_xx": ..., "C_xz": ..., ...}`` (dimensionless; 0 where a component of ``D_s``
-        vanishes).
+        vanishes; the six 3D components on an axisymmetric grid).
     """
+    grid, rho_s, spots, spot_diffusivity_tensor, r1, r2 = _pairs_local.localise(
+        grid, rho_s, spots, kernel, r1, r2, spot_diffusivity_tensor)
     X, X1, X2 = _two_point_integrals(grid, rho_s, spots, kernel, r1, r2,
                                      spot_diffusivity_tensor)
     out = {}
@@ -157,6 +165,8 @@ def pair_diffusivity(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, r1, r2
     if diffusivity not in ("passage", "mean-field"):
         raise ValueError(f"diffusivity: must be 'passage' or 'mean-field', got {diffusivity!r}")
     lam = _check_rule(rule)
+    grid, rho_s, spots, spot_diffusivity_tensor, r1, r2 = _pairs_local.localise(
+        grid, rho_s, spots, kernel, r1, r2, spot_diffusivity_tensor)
     X, X1, X2 = _two_point_integrals(grid, rho_s, spots, kernel, r1, r2,
                                      spot_diffusivity_tensor)
     out = {k: X1[k] + X2[k] - 2.0 * X[k] for k in DIFFUSIVITY_KEYS[grid.dims]}

@@ -31,16 +31,11 @@ AXISYMMETRIC_DIFFUSIVITY_KEYS = ("D_rr", "D_rz", "D_zz")
 BOX_ONLY = {
     "interacting spots": "interacting spots are solved in Cartesian boxes only, not on "
                          "axisymmetric or hopper grids",
-    "two-point statistics": "two-point statistics are implemented for rectangular "
-                            "Cartesian silos only (no axisymmetric grids, no hoppers)",
     "sde ensemble": "sde_ensemble walks particles in a Cartesian box; axisymmetric grids "
                     "and hoppers are not supported",
     "long-run stepping": "is for Cartesian boxes; axisymmetric and hopper grids step "
                          "explicitly (use 'explicit' or 'auto', or t_end = inf for the "
                          "geometrical propagator)",
-    "kinematic comparison": "the comparison fits Gaussian profiles across a Cartesian box; "
-                            "domain.coordinates = \"axisymmetric\" and domain.hopper_angle "
-                            "are not supported (see notebooks/hoppers.ipynb for hopper flows)",
     "cosine series": "cosine coefficients exist for Cartesian boxes only, not for "
                      "axisymmetric or hopper grids",
 }

@@ -174,9 +174,11 @@ def test_deeply_nested_mappings_are_refused_by_dotted_name(monkeypatch):
     # interacting spots with spots.mode = "transient" already set: was told to set it
     (SMALL + '[spots]\nmode = "transient"\nt_end = 10.0\nrho_max = 0.5\n', [],
      "spots.rho_max: interacting spots have no steady state"),
-    # was: "case_or_parts: the comparison fits Gaussian profiles ..."
-    (SMALL.replace("x = [-10.0, 10.0]", 'coordinates = "axisymmetric"\nx = [0.0, 10.0]'),
-     [], "domain.coordinates: "),
+    # was: "case_or_parts: the comparison fits Gaussian profiles ..."; cylinders and
+    # hoppers compare (tests/analysis/test_comparison_cylinder.py), a hopper too narrow for the
+    # kernel is refused by name
+    (SMALL.replace("x = [-10.0, 10.0]", "x = [-10.0, 10.0]\nhopper_angle = 5.0"),
+     [], "domain.hopper_angle: the hopper is too narrow to compare"),
     (SMALL + '[spots]\nb = { z = [0.0, 20.0], values = [1.0, 2.0] }\n', [], "spots.b: "),
     # rules outside kernel.rule's (0, 1]: 0 was accepted
     (SMALL, ["--rules", "0"], "--rules: each rule must be in (0, 1] like kernel.rule, got 0"),
