@@ -17,8 +17,10 @@ Three parts, each measured against a baseline in the same run:
    threads, in cell updates per second per stage, against ``numpy.copyto`` of an array
    of the grid's size in the same process (the stream copy: 16 bytes a cell). A stage
    reads ``P``, ``P0``, three face-velocity and three coefficient arrays, reads and
-   writes the ``P_height`` accumulator and writes its output: 88 bytes a cell, so the
-   memory-bandwidth limit is ``16/88`` of the copy's cell rate.
+   writes the ``P_height`` accumulator and writes its output: 88 bytes a cell (80 with
+   ``D_xx = D_yy`` read once, the slab's case), so the memory-bandwidth limit is
+   ``16/88`` (``16/80``) of the copy's cell rate; ``tracer_bandwidth.py`` compares the
+   step with the bandwidth and its compute roof.
 3. **Single precision** (``--precision``): the slab's particle fields at d/4 with the
    whole-grid transforms in float32 (the default for 3D grids of 1e6 cells or more,
    ``spotpde.fields.convolution.precision_for``) against float64, their time and their
