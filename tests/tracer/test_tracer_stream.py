@@ -136,3 +136,27 @@ def test_steps_at_the_positivity_limit_stay_positive_and_conservative(dims, shap
         assert Q.min() >= -1e-14 * P.max()
     assert sum(budget) > 1e-3 * mass0      # the floor and the top let some out
     assert abs(Q.sum() * hv + sum(budget) - mass0) < 1e-12 * mass0
+
+
+def test_side_outflow_is_the_flux_through_the_four_walls():
+    """``side_outflow`` (a numba loop; it replaced ``numpy.vdot`` through BLAS) is
+    ``sum u P`` over the outer x and y faces, positive outwards, and a 3D step's side
+    rate is that sum times ``h**2``."""
+    from spotpde.tracer._fp_kernels_3d import side_outflow
+
+    grid, f, P = rough_problem(3, (9, 7, 8), seed=11, walls="open")
+    op = _solve._Operator(grid, f, LIMITERS["koren"].code, np.ones(grid.shape[1:], bool),
+                          implicit=False, p_scale=P.max())
+    ux, uy = op.faces["x"], op.faces["y"]
+    want = (np.sum(ux[:, :, -1] * P[:, :, -1]) - np.sum(ux[:, :, 0] * P[:, :, 0])
+            + np.sum(uy[:, -1, :] * P[:, -1, :]) - np.sum(uy[:, 0, :] * P[:, 0, :]))
+    nz, ny, nx = P.shape
+    # the sum of the terms' magnitudes bounds the round-off of either summation order
+    # by (number of terms) EPS times it: 2 (nz ny + nz nx) = 270 terms here
+    scale = max(np.abs(u).max() for u in (ux, uy)) * P.max() * 2 * (nz * ny + nz * nx)
+    assert want > 0                     # open sides: outflow only
+    assert side_outflow(ux, uy, P) == pytest.approx(want, abs=2 * 270 * EPS * scale)
+    ws = _solve._Workspace(grid, P.max())
+    floor, side, top = _solve._rhs(op, P, ws, 0.0)
+    assert side == pytest.approx(want * grid.spacing ** 2,
+                                 abs=2 * 270 * EPS * scale * grid.spacing ** 2)
