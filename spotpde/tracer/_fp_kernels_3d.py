@@ -15,14 +15,18 @@ flushed to 0, as :func:`._fp_kernels.combine`). The diagonal (cross-term) exchan
 a non-diagonal tensor are not evaluated here (``_operator`` adds them with a sparse
 matrix of those terms only; the spot model's tensor is diagonal).
 
-Memory traffic: the planes are processed in chunks of :data:`PLANES_PER_CHUNK`; the
-vertical face fluxes of a chunk live in a chunk-local buffer (cache resident), the y
-faces and the x flux differences in plane buffers, so the pass reads ``P``, ``P0``,
-the three face-velocity and the three coefficient arrays once, reads and writes the
-flux accumulator ``Fz_acc`` of ``P_height``, and writes ``out``: 11 grid arrays, 88
-bytes a cell (a copy moves 16). Each chunk recomputes the face plane it shares with
-the chunk above (bit for bit the same value: conservation is exact), and only the
-chunk below a face plane accumulates it.
+Memory traffic: the planes are processed in chunks of :data:`PLANES_PER_CHUNK` (the
+parallel work items), each in one sweep upwards: the vertical face fluxes of the plane
+being finished live in two plane buffers (its bottom and top faces), the y faces in a
+plane buffer and the x faces in a row buffer, so the pass reads ``P``, ``P0``, the three
+face-velocity and the three coefficient arrays once, reads and writes the flux
+accumulator ``Fz_acc`` of ``P_height`` and writes ``out``: 11 grid arrays, 88 bytes a
+cell (a copy moves 16; 80 when ``_operator`` passes ``D_xx = D_yy`` as one array, 8
+less again in the first Runge-Kutta stage, where ``P0`` is ``P``). The face plane two
+chunks share is computed by both (bit for bit the same value: conservation is exact)
+and accumulated by the chunk above it only. The
+earlier two-pass layout is kept in :mod:`._fp_kernels_3d_two_pass`; docs/tracer.md
+("How fast a step is") compares them with the memory bandwidth.
 
 Sign convention as in :mod:`._fp_kernels`: ``Fz[k]`` is the flux per unit horizontal
 area through the bottom face of plane ``k``, positive upwards.
@@ -40,8 +44,8 @@ from numba.extending import overload
 from ._fp_kernels import (FASTMATH, KOREN, WENO5, _literal_limiter, _reach, _ROW_JIT,
                           face_value, weno5z, xface_row, zface_row)
 
-#: z planes of cells per parallel work item (the chunk's vertical faces stay in cache:
-#: (8 + 1) planes of 32 x 200 cells are 460 kB).
+#: z planes of cells per parallel work item (one face plane in this many is computed
+#: twice; 50 work items for the slab's 400 planes).
 PLANES_PER_CHUNK = 8
 
 
@@ -100,17 +104,6 @@ def _boundary_row(Pe, u, Fk):
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
-def _stage_flat(divx, Fys, Fyn, Fzb, Fzt, P0k, Pk, ca, cb, cc, tiny, out, ih):
-    """``out = ca P0 + cb P + cc R`` over one plane of cells (flattened),
-    ``R = -(divx + Fyn - Fys + Fzt - Fzb) / h`` with ``divx`` the x flux differences;
-    values below ``tiny`` in magnitude become 0 (NaN passes through)."""
-    for m in range(out.shape[0]):
-        r = -(divx[m] + (Fyn[m] - Fys[m]) + (Fzt[m] - Fzb[m])) * ih
-        v = ca * P0k[m] + cb * Pk[m] + cc * r
-        out[m] = 0.0 if abs(v) < tiny else v
-
-
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
 def _accumulate_flat(Fk, acc, w):
     """``acc += w Fk`` over one face plane (the vertical flux accumulator of ``P_height``)."""
     for m in range(Fk.shape[0]):
@@ -130,6 +123,37 @@ def _copy_flat(src, dst):
 def _plane(A, k):
     """Plane ``k`` of a C-contiguous 3D array as a flat view."""
     return A[k].reshape(A.shape[1] * A.shape[2])
+
+
+@njit(cache=True, error_model="numpy")
+def side_outflow(uxf, uyf, P):
+    """Advective outflow rate through the four side walls per unit face area (d per unit
+    time times 1/d**3), ``sum u P`` over the boundary faces (positive outwards).
+
+    One serial loop over the wall cells: ``numpy.vdot`` of the strided wall slices went
+    through BLAS, whose threads waited for cores on the shared machine; it took 7-14 ms
+    a stage on the slab (as much as the kernel itself on one thread, measured).
+    """
+    nz, ny, nx = P.shape
+    s = 0.0
+    for k in range(nz):
+        for j in range(ny):
+            s += uxf[k, j, nx] * P[k, j, nx - 1] - uxf[k, j, 0] * P[k, j, 0]
+        for i in range(nx):
+            s += uyf[k, ny, i] * P[k, ny - 1, i] - uyf[k, 0, i] * P[k, 0, i]
+    return s
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+def _stage_row(Fx, Fys, Fyn, Fzb, Fzt, P0k, Pk, ca, cb, cc, tiny, out, ih):
+    """``out = ca P0 + cb P + cc R`` over one row of cells, ``R = -(Fx[i+1] - Fx[i] +
+    Fyn - Fys + Fzt - Fzb) / h`` (the terms of
+    :func:`._fp_kernels_3d_two_pass._stage_flat`, in its order);
+    values below ``tiny`` in magnitude become 0 (NaN passes through)."""
+    for i in range(out.shape[0]):
+        r = -((Fx[i + 1] - Fx[i]) + (Fyn[i] - Fys[i]) + (Fzt[i] - Fzb[i])) * ih
+        v = ca * P0k[i] + cb * Pk[i] + cc * r
+        out[i] = 0.0 if abs(v) < tiny else v
 
 
 @functools.lru_cache(maxsize=None)
@@ -154,7 +178,7 @@ def rhs_3d_kernel(limiter: int):
                 velocities in d per unit time (boundary faces carry the boundary
                 condition: 0 at walls, outflow only at open faces).
             Axx, Ayy, Azz: (nz, ny, nx) axial exchange coefficients in d**2 per unit
-                time (zero arrays: advection only).
+                time (zero arrays: advection only; the same array may be passed twice).
             eps: WENO scale ``1 / P_scale**2``; h: spacing in d.
             out: (nz, ny, nx) ``ca P0 + cb P + cc R`` (``ca = cb = tiny = 0``, ``cc = 1``
                 give ``R``); may be ``P0`` itself, never ``P``.
@@ -164,10 +188,11 @@ def rhs_3d_kernel(limiter: int):
             w_acc: weight of this stage's fluxes (time step times Runge-Kutta weight).
             P0, ca, cb, cc, tiny: the stage combination.
 
-        All arrays C-contiguous. The z faces of a plane, the y faces away from the two
-        y walls and the stage are computed over whole flattened planes (one call each:
-        rows of a slab are short, 200 cells, and a call per row cost as much again);
-        the x faces row by row (the walls at each row's ends).
+        All arrays C-contiguous. One sweep up each chunk of planes: step ``kk``
+        computes face plane ``k0 + kk`` into one of two plane buffers and then finishes
+        plane ``k0 + kk - 1`` (its y faces over the flattened plane, its x faces and
+        its stage row by row), so every plane of every array is read once, while the
+        planes the vertical stencil shares are still in cache.
         """
         nz, ny, nx = P.shape
         n = ny * nx
@@ -178,13 +203,12 @@ def rhs_3d_kernel(limiter: int):
         for c in prange(nchunk):
             k0 = c * nz // nchunk
             m = (c + 1) * nz // nchunk - k0
-            Fz = np.empty((m + 1, n))           # face planes k0 .. k0 + m
+            Fz = np.empty((2, n))               # the bottom and top faces of a plane
             Fy = np.empty((ny + 1) * nx)
-            divx = np.empty(n)
             Fx = np.empty(nx + 1)
             for kk in range(m + 1):
                 k = k0 + kk
-                Fk = Fz[kk]
+                Fk = Fz[kk % 2]
                 if k == 0 or k == nz:
                     _boundary_row(_plane(P, 0 if k == 0 else nz - 1), _plane(uzf, k), Fk)
                 elif k >= r and k <= nz - r:
@@ -202,8 +226,10 @@ def rhs_3d_kernel(limiter: int):
                     _accumulate_flat(Fk, _plane(Fz_acc, k), w_acc)
                     if k == 0 or k == nz:
                         _copy_flat(Fk, _plane(Fz_edge, 0 if k == 0 else 1))
-            for kk in range(m):
-                k = k0 + kk
+                if kk == 0:
+                    continue
+                k = k - 1                    # the plane below face plane k: finish it
+                Fb = Fz[(kk - 1) % 2]
                 Pk = P[k]
                 Pf = _plane(P, k)
                 if L > 0:
@@ -224,11 +250,11 @@ def rhs_3d_kernel(limiter: int):
                         edge_row(Pk[max(j - 3, 0)], Pk[max(j - 2, 0)], Pk[j - 1], Pk[j],
                                  Pk[min(j + 1, ny - 1)], Pk[min(j + 2, ny - 1)], uk[j],
                                  Ak[j - 1], Ak[j], Fj, ih, eps, limiter, up, down)
+                P0k, outk = P0[k], out[k]
                 for j in range(ny):
                     xface_row(Pk[j], uxf[k, j], Axx[k, j], Fx, ih, eps, limiter)
-                    for i in range(nx):
-                        divx[j * nx + i] = Fx[i + 1] - Fx[i]
-                _stage_flat(divx, Fy[0:n], Fy[nx:n + nx], Fz[kk], Fz[kk + 1], _plane(P0, k),
-                            Pf, ca, cb, cc, tiny, _plane(out, k), ih)
+                    s = j * nx
+                    _stage_row(Fx, Fy[s:s + nx], Fy[s + nx:s + 2 * nx], Fb[s:s + nx],
+                               Fk[s:s + nx], P0k[j], Pk[j], ca, cb, cc, tiny, outk[j], ih)
 
     return rhs_3d
