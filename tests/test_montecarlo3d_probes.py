@@ -84,3 +84,32 @@ def test_particle_density_of_3d_positions():
     assert P0[3, 1, 0] == pytest.approx(1 / 3 / g.cell_volume)   # z 3.5, y 0.5, x -1.5
     with pytest.raises(ValueError, match="^points"):
         mcstats.particle_density(g, pts[:, :2])
+
+
+def test_3d_velocity_correlation_of_the_depth_component_matches_the_horizontal_one():
+    """Spots walk alike in x and y, so in uniform flow ``C(r)`` of the ``y`` displacement
+    equals that of ``x`` within the errors (windows of 10 time units, two spot passages,
+    from 4 replicas pooled by averaging), and it is positive at short range. A 2D run has
+    no ``y``."""
+    P = np.stack(np.meshgrid(np.arange(-2.0, 2.5), np.arange(4.0, 8.5), np.arange(-2.0, 2.5),
+                             indexing="ij"), axis=-1).reshape(-1, 3)   # columns (x, z, y)
+    bins = np.array([0.5, 1.2, 2.2, 3.5])
+    cx, cy = [], []
+    for seed in range(4):
+        _, r = _uniform(seed, t_end=132.0, particles=P, tracked="all", records=12)
+        c = {comp: mc.velocity_correlation(r, bins, component=comp, skip=2)
+             for comp in ("x", "y")}
+        assert c["x"].C.size == bins.size - 1 == c["y"].C.size
+        cx.append(c["x"].C.values)
+        cy.append(c["y"].C.values)
+    mx, sx = mcstats.replica_mean(cx)
+    my, sy = mcstats.replica_mean(cy)
+    assert np.all(np.abs(mx - my) < mcstats.t_limit(4) * np.hypot(sx, sy)), (mx, my, sx, sy)
+    assert my[0] > 3 * sy[0]
+    g2 = Grid(2, (-3.0, 3.0), (0.0, 6.0), 1.0)
+    r2 = mc.simulate(g2, Orifice(width=2.0, rate=4.0), Spots(),
+                     kernels.Uniform(radius=1.0, height=0.01, dims=2),
+                     particles=np.array([[0.0, 3.0], [1.0, 3.0]]), tracked="all", records=3,
+                     t_end=3.0, probes=False)
+    with pytest.raises(ValueError, match="^component"):
+        mc.velocity_correlation(r2, bins, component="y")

@@ -237,7 +237,8 @@ def velocity_correlation(result: MCResult, bins: np.ndarray, select=None, compon
 
     Args:
         bins: separation bin edges in d.
-        select: boolean mask over tracked particles. component: ``"x"`` or ``"z"``.
+        select: boolean mask over tracked particles. component: ``"x"`` or ``"z"``, or
+            ``"y"`` (the depth) for a 3D run.
         skip: number of initial windows to drop.
         centre: ``"ensemble"`` (default, unbiased) or ``"window"``.
 
@@ -249,7 +250,14 @@ def velocity_correlation(result: MCResult, bins: np.ndarray, select=None, compon
     if centre not in ("ensemble", "window"):
         raise ValueError(f"centre: must be 'ensemble' or 'window', got {centre!r}")
     dx, dz, tau, start = _windows(result, select)
-    d = (dx if component == "x" else dz)[skip:]
+    if component not in ("x", "z", "y") or (component == "y" and start.shape[-1] != 3):
+        raise ValueError(f"component: must be 'x' or 'z' (or 'y' in 3D), got {component!r}")
+    if component == "y":
+        pos = np.concatenate([result.initial[result.tracked][None], result.positions], axis=0)
+        d = np.diff(pos[..., 2] if select is None else pos[:, np.asarray(select), 2], axis=0)
+    else:
+        d = dx if component == "x" else dz
+    d = d[skip:]
     tau = tau[skip:]
     start = start[skip:]
     with np.errstate(invalid="ignore"):
