@@ -76,6 +76,7 @@ def test_the_table_is_read_into_typed_settings_and_round_trips():
     ({"probes": 1}, "montecarlo.probes: must be true or false, got 1"),
     ({"batches": 0}, "montecarlo.batches: must be >= 1, got 0"),
     ({"records": 10**6}, "montecarlo.records: must be <= 10000, got 1000000"),
+    ({"replicas": 0}, "montecarlo.replicas: must be >= 1, got 0"),
     ({"tracked": [1, 2]}, 'montecarlo.tracked: must be one of "all", "none", got [1, 2]'),
     ({"relax": 1}, "montecarlo.relax: must be true, false or a table of alpha, iterations, "
                    "every, radius, polydispersity, distribution, opening, margin, got 1"),
@@ -166,3 +167,20 @@ def test_from_case_uses_the_table_under_the_callers_keywords():
     # the shipped example case carries a table, and it runs
     ex = load_case(ROOT / "cases" / "montecarlo_layers.toml")
     assert ex.montecarlo.particles == "lattice" and ex.montecarlo.seed is not None
+
+
+def test_replicas_from_case_runs_independent_seeds():
+    case = load_case(small({"seed": 4, "replicas": 3, "t_end": 1.0, "particles": "random",
+                            "probes": False}))
+    assert case.montecarlo.replicas == 3 and "replicas" not in case.montecarlo.keywords()
+    runs = mc.replicas_from_case(case)
+    assert [r.seed for r in runs] == [4, 5, 6]
+    # independent: each its own packing and its own spots
+    assert not (runs[0].initial == runs[1].initial).all()
+    # keywords override the table; the single run of from_case is the replica of its seed
+    two = mc.replicas_from_case(case, replicas=2, seed=9, t_end=0.75)
+    assert [r.seed for r in two] == [9, 10] and two[0].t_end == pytest.approx(0.75)
+    one = mc.from_case(case, seed=9, t_end=0.75)
+    assert (one.final == two[0].final).all()
+    with pytest.raises(ValueError, match="^replicas"):
+        mc.replicas_from_case(case, replicas=0)

@@ -7,7 +7,8 @@ given to ``from_case`` overrides the table. The names are those keywords:
 
 ``particles`` ("lattice", "random", "tracer", "none"), ``spacing`` (d), ``seed``,
 ``t_end`` or ``n_spots``, ``step`` (d), ``gamma``, ``steps``, ``probes``, ``batches``,
-``records``, ``tracked`` ("all", "none"), and ``relax`` = ``true`` (the defaults of
+``records``, ``tracked`` ("all", "none"), ``replicas`` (independent runs, seeds
+``seed, seed + 1, ...``: ``montecarlo.replicas_from_case``), and ``relax`` = ``true`` (the defaults of
 ``montecarlo.Relax``), ``false``, or a table of ``Relax``'s fields (``alpha``,
 ``iterations``, ``every``, ``radius``, ``polydispersity``, ``distribution``, ``opening``,
 ``margin``).
@@ -25,7 +26,7 @@ from typing import Any
 MONTECARLO_KEYS: dict[str, Any] = {
     "particles": None, "spacing": None, "seed": None, "t_end": None, "n_spots": None,
     "step": None, "gamma": None, "steps": None, "probes": None, "batches": None,
-    "records": None, "tracked": None, "relax": None}
+    "records": None, "tracked": None, "replicas": None, "relax": None}
 #: the ``montecarlo.relax`` table's keys: ``spotpde.montecarlo.Relax``'s fields
 RELAX_KEYS: dict[str, Any] = {
     "alpha": None, "iterations": None, "every": None, "radius": None,
@@ -48,7 +49,8 @@ def check_montecarlo(v, t: dict) -> dict:
     num = {"spacing": dict(gt=0), "t_end": dict(gt=0, limit=1e9), "step": dict(gt=0),
            "gamma": dict(ge=0, lt=1)}
     ints = {"seed": dict(ge=0, limit=MAX_SEED), "n_spots": dict(ge=1, limit=10**12),
-            "batches": dict(ge=1, le=MAX_COUNT), "records": dict(ge=1, le=MAX_COUNT)}
+            "batches": dict(ge=1, le=MAX_COUNT), "records": dict(ge=1, le=MAX_COUNT),
+            "replicas": dict(ge=1, le=MAX_COUNT)}
     for key, value in t.items():
         if value is None:
             continue

@@ -21,7 +21,7 @@ from ._measure import (displacement_statistics, measure, particle_frames, propag
 from ._particles import blob, dense_packing, lattice, layer_mask, random_packing
 from ._predict import spot_walks, uniform_flow_prediction
 from ._relax import DISTRIBUTIONS, Relax, draw_diameters, relax_packing
-from ._settings import MonteCarloSettings
+from ._settings import MonteCarloSettings, replicas_from_case
 from ._simulate import (CUTOFF, STEPS, KernelParams, MCResult, from_case, kernel_evaluate,
                         kernel_params, simulate)
 
@@ -29,5 +29,6 @@ __all__ = ["CUTOFF", "DISTRIBUTIONS", "STEPS", "KernelParams", "MCResult", "Mont
            "Relax", "blob",
            "dense_packing", "displacement_statistics", "draw_diameters", "relax_packing",
            "from_case", "kernel_evaluate", "kernel_params", "lattice", "layer_mask", "measure",
-           "particle_frames", "propagator", "random_packing", "simulate", "spot_walks",
+           "particle_frames", "propagator", "random_packing", "replicas_from_case", "simulate",
+           "spot_walks",
            "uniform_flow_prediction", "velocity_correlation"]

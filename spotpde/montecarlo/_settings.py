@@ -13,7 +13,7 @@ from typing import Mapping
 
 from ._relax import Relax
 
-__all__ = ["MonteCarloSettings", "UNSET", "with_settings"]
+__all__ = ["MonteCarloSettings", "UNSET", "replicas_from_case", "with_settings"]
 
 
 class _Unset:
@@ -45,6 +45,8 @@ class MonteCarloSettings:
         probes: accumulate the probe fields (bool).
         batches: time batches of the probe fields; records: snapshots of tracked particles.
         tracked: ``"all"`` or ``"none"``.
+        replicas: number of independent runs of :func:`replicas_from_case` (seeds
+            ``seed, seed + 1, ...``); ``from_case`` runs one.
         relax: a :class:`~spotpde.montecarlo.Relax` (relaxation on), ``False`` (off).
     """
 
@@ -60,6 +62,7 @@ class MonteCarloSettings:
     batches: int | None = None
     records: int | None = None
     tracked: str | None = None
+    replicas: int | None = None
     relax: Relax | bool | None = None
 
     @classmethod
@@ -84,7 +87,7 @@ class MonteCarloSettings:
         out = {}
         for f in fields(self):
             value = getattr(self, f.name)
-            if value is None:
+            if value is None or f.name == "replicas":
                 continue
             if f.name in ("particles", "tracked") and value == "none":
                 value = None
@@ -107,3 +110,38 @@ def with_settings(case, particles, spacing, kwargs: dict):
                 merged.pop(key, None)
     return (table_particles if particles is UNSET else particles,
             table_spacing if spacing is UNSET else spacing, merged)
+
+
+def replicas_from_case(case, *, replicas: int | None = None, scheduler: str | None = None,
+                       **kwargs) -> list:
+    """Independent runs of :func:`~spotpde.montecarlo.from_case`, one per seed.
+
+    Seeds ``seed, seed + 1, ..., seed + replicas - 1`` with ``seed`` and ``replicas`` from
+    the keywords, else from the case's ``[montecarlo]`` table, else 0 and 1; every other
+    keyword goes to ``from_case`` (over the table). Errors of a quantity are its scatter
+    over the returned runs (``mcstats.replica_mean``).
+
+    Args:
+        replicas: number of runs (>= 1).
+        scheduler: ``None`` (one after the other) or a Dask scheduler name
+            (``mcstats.replicas``).
+
+    Returns:
+        list of :class:`~spotpde.montecarlo.MCResult`, in seed order.
+
+    Raises:
+        ValueError: ``replicas`` or ``seed`` invalid.
+    """
+    from . import mcstats
+    from ._simulate import from_case
+
+    settings = getattr(case, "montecarlo", None) or MonteCarloSettings()
+    n = replicas if replicas is not None else (settings.replicas or 1)
+    base = kwargs.pop("seed", None)
+    base = base if base is not None else (settings.seed or 0)
+    if not (isinstance(n, int) and not isinstance(n, bool) and n >= 1):
+        raise ValueError(f"replicas: must be an integer >= 1, got {n!r}")
+    if not (isinstance(base, int) and not isinstance(base, bool) and base >= 0):
+        raise ValueError(f"seed: must be an integer >= 0, got {base!r}")
+    return mcstats.replicas(lambda s: from_case(case, seed=s, **kwargs),
+                            range(base, base + n), scheduler=scheduler)
