@@ -113,3 +113,30 @@ def test_3d_velocity_correlation_of_the_depth_component_matches_the_horizontal_o
                      t_end=3.0, probes=False)
     with pytest.raises(ValueError, match="^component"):
         mc.velocity_correlation(r2, bins, component="y")
+
+
+def test_3d_case_table_replicas_and_probes():
+    """A 3D case with a ``[montecarlo]`` table: replicas from the table's seeds, probes
+    and tracked particles as in 2D (``mcstats.positions_at``, ``drained_fraction``)."""
+    from pathlib import Path
+
+    import spotpde
+
+    data = spotpde.load_case(Path(__file__).parents[1] / "cases" / "slab3d.toml").data
+    data = {**data, "domain": {**data["domain"], "x": [-6.0, 6.0], "z": [0.0, 12.0],
+                               "spacing": 1.0},
+            "orifice": {**data["orifice"], "width": 4.0},
+            "montecarlo": {"particles": "lattice", "spacing": 1.0, "seed": 3, "replicas": 2,
+                           "t_end": 6.0, "probes": True, "batches": 3, "records": 3,
+                           "tracked": "all"}}
+    case = spotpde.load_case(data)
+    runs = mc.replicas_from_case(case)
+    assert [r.seed for r in runs] == [3, 4]
+    for r in runs:
+        assert r.probe.shape[:2] == (9, 3) and r.positions.shape[2] == 3
+        ds = mc.measure(r)
+        assert ds.u_z.dims == ("z", "y", "x") and float(ds.u_z.min()) < 0.0
+        start = mcstats.positions_at(r, 0.0)
+        low = start[:, 1] < 3.0
+        assert 0.0 < mcstats.drained_fraction(r, low, 0.0, r.times[-1]) <= 1.0
+    assert not np.array_equal(runs[0].final, runs[1].final)
