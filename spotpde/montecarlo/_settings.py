@@ -8,12 +8,14 @@ table keep the Python defaults, Python keywords override the table (docs/cases.m
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, fields
 from typing import Mapping
 
 from ._relax import Relax
 
-__all__ = ["MonteCarloSettings", "UNSET", "replicas_from_case", "with_settings"]
+__all__ = ["MonteCarloSettings", "UNSET", "case_settings", "replicas_from_case",
+           "with_settings"]
 
 
 class _Unset:
@@ -110,6 +112,18 @@ def with_settings(case, particles, spacing, kwargs: dict):
                 merged.pop(key, None)
     return (table_particles if particles is UNSET else particles,
             table_spacing if spacing is UNSET else spacing, merged)
+
+
+def case_settings(run):
+    """Decorate ``from_case(case, *, particles, spacing, **kwargs)`` so that the case's
+    ``[montecarlo]`` settings fill in the keywords its caller did not give."""
+
+    @functools.wraps(run)
+    def wrapper(case, *, particles=UNSET, spacing=UNSET, **kwargs):
+        particles, spacing, kwargs = with_settings(case, particles, spacing, kwargs)
+        return run(case, particles=particles, spacing=spacing, **kwargs)
+
+    return wrapper
 
 
 def replicas_from_case(case, *, replicas: int | None = None, scheduler: str | None = None,

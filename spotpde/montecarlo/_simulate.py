@@ -45,7 +45,7 @@ from ..grid import Grid
 from ..parameters import Orifice, Spots
 from ._particles import blob, lattice, random_packing, tracking
 from ._relax import Relax, particle_diameters, relax_params
-from ._settings import UNSET, with_settings
+from ._settings import case_settings
 from ._simulate3d import case_particles3d, run3d
 
 STEPS = ("gaussian", "binary")
@@ -464,7 +464,8 @@ def _relax_reach(kp: KernelParams) -> float:
     return math.log(100.0) * size
 
 
-def from_case(case, *, particles=UNSET, spacing=UNSET, **kwargs) -> MCResult:
+@case_settings
+def from_case(case, *, particles="lattice", spacing: float = 1.0, **kwargs) -> MCResult:
     """Run the Monte Carlo with a :class:`spotpde.cases.Case`'s parameters.
 
     The case's ``[montecarlo]`` table (``case.montecarlo``, docs/cases.md) gives the run
@@ -472,8 +473,7 @@ def from_case(case, *, particles=UNSET, spacing=UNSET, **kwargs) -> MCResult:
 
     Args:
         case: a loaded case (2D or 3D); its grid, orifice, spots, kernel and rule are used.
-        particles: ``"lattice"`` (default; triangular lattice of ``spacing``, default
-            1 d), ``"random"``
+        particles: ``"lattice"`` (triangular lattice of ``spacing``), ``"random"``
             (:func:`random_packing`, phi 0.5), ``"tracer"`` (2000 particles from the
             tracer blob, all tracked), ``None``, or an ``(N, 2)`` array. 3D: a simple
             cubic lattice, :func:`dense_packing` at phi 0.5, no ``"tracer"``; arrays
@@ -482,7 +482,6 @@ def from_case(case, *, particles=UNSET, spacing=UNSET, **kwargs) -> MCResult:
             for ``tracer.model = "void"`` the step defaults to 1 d, larger than the void's
             radius, so that a void displaces a given particle at most once).
     """
-    particles, spacing, kwargs = with_settings(case, particles, spacing, kwargs)
     grid = case.grid
     if grid.axisymmetric or grid.hopper is not None:
         raise ValueError("case: the discrete spot model runs in rectangular boxes; this "
