@@ -254,7 +254,7 @@ class _Validator:
         self.given = {name: set(t) for name, t in raw.items() if isinstance(t, Mapping)}
         data: dict[str, Any] = {}
         for name, defaults in DEFAULTS.items():
-            if name in ("tracer", "pair") and name not in raw:
+            if name in ("tracer", "pair", "montecarlo") and name not in raw:
                 continue
             t = self.table(name, raw.get(name, {}), defaults)
             if t is None:
@@ -522,3 +522,10 @@ class _Validator:
             self.bad("output.path", "must name a file, not a directory", path)
             path = None
         return {"path": path}
+
+
+# -- the optional [montecarlo] table: the Monte Carlo's run settings (_schema_mc) -------
+from ._schema_mc import MONTECARLO_KEYS, check_montecarlo  # noqa: E402
+
+DEFAULTS["montecarlo"] = MONTECARLO_KEYS
+_Validator._montecarlo = check_montecarlo

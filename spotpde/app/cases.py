@@ -68,6 +68,8 @@ class Case:
         tracer_options: keyword options of ``spotpde.tracer.solve`` (``limiter``, ``cfl``,
             ``diffusion``, ``stepping``, ``tol``, ``split``), empty without a tracer.
         output_path: ``output.path`` resolved against the current directory.
+        montecarlo: the ``[montecarlo]`` run settings
+            (:class:`spotpde.montecarlo.MonteCarloSettings`).
     """
 
     def __init__(self, data: dict, text: str | None = None, source: str | None = None):
@@ -148,6 +150,17 @@ class Case:
 
             self._kernel = kernels.from_spec(**self.kernel_spec)
         return self._kernel
+
+    @property
+    def montecarlo(self):
+        """The ``[montecarlo]`` table as :class:`spotpde.montecarlo.MonteCarloSettings`
+        (read once; every field ``None`` without the table), the run settings of
+        ``spotpde.montecarlo.from_case``."""
+        if getattr(self, "_montecarlo", None) is None:
+            from ..montecarlo import MonteCarloSettings
+
+            self._montecarlo = MonteCarloSettings.from_table(self.data.get("montecarlo"))
+        return self._montecarlo
 
     @property
     def output_path(self) -> Path:

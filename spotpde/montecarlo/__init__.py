@@ -13,7 +13,7 @@ numba loop and its :class:`~spotpde.montecarlo._mc_kernels.Params`), ``_particle
 ``_simulate3d``, ``_mc3d``, ``_relax3d`` (the 3D model: spheres in a box or thin slab,
 docs/packing.md section 6),
 ``_measure`` (fields and statistics of a run), ``_predict`` (closed
-forms).
+forms), ``_settings`` (the ``[montecarlo]`` case table, :class:`MonteCarloSettings`).
 """
 
 from ._measure import (displacement_statistics, measure, particle_frames, propagator,
@@ -21,11 +21,14 @@ from ._measure import (displacement_statistics, measure, particle_frames, propag
 from ._particles import blob, dense_packing, lattice, layer_mask, random_packing
 from ._predict import spot_walks, uniform_flow_prediction
 from ._relax import DISTRIBUTIONS, Relax, draw_diameters, relax_packing
+from ._settings import MonteCarloSettings, replicas_from_case
 from ._simulate import (CUTOFF, STEPS, KernelParams, MCResult, from_case, kernel_evaluate,
                         kernel_params, simulate)
 
-__all__ = ["CUTOFF", "DISTRIBUTIONS", "STEPS", "KernelParams", "MCResult", "Relax", "blob",
+__all__ = ["CUTOFF", "DISTRIBUTIONS", "STEPS", "KernelParams", "MCResult", "MonteCarloSettings",
+           "Relax", "blob",
            "dense_packing", "displacement_statistics", "draw_diameters", "relax_packing",
            "from_case", "kernel_evaluate", "kernel_params", "lattice", "layer_mask", "measure",
-           "particle_frames", "propagator", "random_packing", "simulate", "spot_walks",
+           "particle_frames", "propagator", "random_packing", "replicas_from_case", "simulate",
+           "spot_walks",
            "uniform_flow_prediction", "velocity_correlation"]

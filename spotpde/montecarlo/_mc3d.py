@@ -8,7 +8,9 @@ up in ``z``; reflecting walls mirror them in ``x`` and in ``y`` (their persisten
 direction along that axis turns around), open walls remove them. The influence is a
 3D kernel (:func:`kernel_w3`), renormalised by the fraction ``phi(x, y)`` of the
 kernel inside the side, front and back walls (bilinear in a table). Particles are found
-through a 3D cell list, so a spot step costs O(particles within reach). No probe fields.
+through a 3D cell list, so a spot step costs O(particles within reach). Frozen probes at
+the grid's cell centres (``probes``) accumulate the mean-field drift and diffusivity as
+in 2D, with all three components.
 """
 
 from __future__ import annotations
@@ -34,7 +36,9 @@ class Params3(NamedTuple):
     Attributes (beyond the 2D ones): y0, y1: the front and back walls (d); yc: the
     orifice's centre in y; slot: 1 the orifice spans the whole depth (``y`` uniform), 0 a
     disk of diameter ``width`` (or a radial Gaussian) at ``(xc, yc)``; ty0, tdy: the
-    coverage table's first node and spacing in y; ncy: particle cells in y.
+    coverage table's first node and spacing in y; ncy: particle cells in y;
+    probe_x0, probe_y0, probe_z0, probe_h: the probe grid's first centre and spacing;
+    pnx, pny, pnz: its points; n_batch: time batches; probes: 1 to accumulate them.
     """
 
     x0: float
@@ -73,6 +77,15 @@ class Params3(NamedTuple):
     ncy: int
     ncz: int
     ticks_total: int
+    probe_x0: float = 0.0
+    probe_y0: float = 0.0
+    probe_z0: float = 0.0
+    probe_h: float = 1.0
+    pnx: int = 1
+    pny: int = 1
+    pnz: int = 1
+    n_batch: int = 1
+    probes: int = 0
 
 
 def make_params3(**values) -> Params3:
@@ -249,12 +262,53 @@ def _inject(prm, j, sx, sy):
 
 
 @njit(cache=True)
+def _probe_step(prm, probe, rho_hist, batch, ox, oy, oz, dx, dy, dz, cx_, cy_, cz_, inv_phi):
+    """Add one spot step to the frozen probes and the spot-density histogram."""
+    h = prm.probe_h
+    rh = prm.reach_h; rv = prm.reach_v
+    jx_lo = max(int(math.ceil((cx_ - rh - prm.probe_x0) / h)), 0)
+    jx_hi = min(int(math.floor((cx_ + rh - prm.probe_x0) / h)), prm.pnx - 1)
+    jy_lo = max(int(math.ceil((cy_ - rh - prm.probe_y0) / h)), 0)
+    jy_hi = min(int(math.floor((cy_ + rh - prm.probe_y0) / h)), prm.pny - 1)
+    jz_lo = max(int(math.ceil((cz_ - rv - prm.probe_z0) / h)), 0)
+    jz_hi = min(int(math.floor((cz_ + rv - prm.probe_z0) / h)), prm.pnz - 1)
+    ddz = dz - prm.step
+    for jz in range(jz_lo, jz_hi + 1):
+        zz = prm.probe_z0 + jz * h - cz_
+        for jy in range(jy_lo, jy_hi + 1):
+            yy = prm.probe_y0 + jy * h - cy_
+            for jx in range(jx_lo, jx_hi + 1):
+                w = kernel_w3(prm.shape, prm.probe_x0 + jx * h - cx_, yy, zz, prm.ksize,
+                              prm.ksize_v, prm.kamp, rh, rv)
+                if w == 0.0:
+                    continue
+                w *= inv_phi
+                w2 = w * w
+                probe[0, batch, jz, jy, jx] -= w * dx
+                probe[1, batch, jz, jy, jx] -= w * dy
+                probe[2, batch, jz, jy, jx] -= w * dz
+                probe[3, batch, jz, jy, jx] += w2 * dx * dx
+                probe[4, batch, jz, jy, jx] += w2 * dy * dy
+                probe[5, batch, jz, jy, jx] += w2 * ddz * ddz
+                probe[6, batch, jz, jy, jx] += w2 * dx * dy
+                probe[7, batch, jz, jy, jx] += w2 * dx * ddz
+                probe[8, batch, jz, jy, jx] += w2 * dy * ddz
+    # spot density sample at a uniformly random point of the step
+    u = np.random.random()
+    hx = int(math.floor((ox + u * dx - prm.probe_x0) / h + 0.5))
+    hy = int(math.floor((oy + u * dy - prm.probe_y0) / h + 0.5))
+    hz = int(math.floor((oz + u * dz - prm.probe_z0) / h + 0.5))
+    if 0 <= hx < prm.pnx and 0 <= hy < prm.pny and 0 <= hz < prm.pnz:
+        rho_hist[batch, hz, hy, hx] += 1.0
+
+
+@njit(cache=True)
 def advance3(prm, cnt, n_ticks, sx, sy, sz, sxi, syi,
              px, py, pz, status, moved, cell_start, cell_idx,
              track_slot, tpos, rec_ticks, levels, lev_next, cross_x, cross_t, exit_x, exit_t,
-             phi_tab, rp, diam, srel, blk, old):
+             phi_tab, rp, diam, srel, blk, old, probe, rho_hist):
     """Advance the 3D simulation by at most ``n_ticks`` ticks (``_mc_kernels.advance`` in
-    3D, without probes): inject ``Poisson(Q0 dt)`` spots, step each one by
+    3D): inject ``Poisson(Q0 dt)`` spots, step each one by
     ``dR = (dx, dy, dz)``, move each particle within reach of ``r_s + lam dR`` by
     ``-w dR / phi(x_s + lam dx, y_s + lam dy)``, relax the grains near the spot (every
     ``rp.every``-th step and its last; ``_relax3d.relax_block3``).
@@ -263,7 +317,10 @@ def advance3(prm, cnt, n_ticks, sx, sy, sz, sxi, syi,
     Arrays: spots ``sx, sy, sz`` and persistent unit step variables ``sxi, syi``; ``srel``
     ``(cap, 4)``: the start ``(x, y, z)`` of the segment not yet relaxed and the steps
     since; ``tpos`` ``(n_rec, n_tracked, 3)`` in columns ``(x, z, y)``; ``phi_tab`` ``(ny_t, nx_t)`` (or 1 x 1:
-    no renormalisation); ``old`` ``(N, 3)``. The others as in ``_mc_kernels.advance``.
+    no renormalisation); ``old`` ``(N, 3)``; ``probe`` ``(9, n_batch, pnz, pny, pnx)``: sums
+    of ``-w dx``, ``-w dy``, ``-w dz`` and of ``w**2`` times ``dx dx``, ``dy dy``, ``dz' dz'``,
+    ``dx dy``, ``dx dz'``, ``dy dz'`` (``dz' = dz - Delta``); ``rho_hist``
+    ``(n_batch, pnz, pny, pnx)`` spot samples. The others as in ``_mc_kernels.advance``.
 
     Returns:
         Number of ticks done.
@@ -277,6 +334,7 @@ def advance3(prm, cnt, n_ticks, sx, sy, sz, sxi, syi,
     tx0 = prm.tab_x0; tdx = prm.tab_dx; ty0 = prm.tab_y0; tdy = prm.tab_dy
     shape = prm.shape; walls = prm.walls; steps = prm.steps
     ncx = prm.ncx; ncy = prm.ncy; ncz = prm.ncz
+    use_probes = prm.probes; nbatch = prm.n_batch; ticks_total = prm.ticks_total
     cap = sx.size
     fresh, keep_p = persistence(gamma)
     n_rec = rec_ticks.size
@@ -290,6 +348,7 @@ def advance3(prm, cnt, n_ticks, sx, sy, sz, sxi, syi,
     while done < n_ticks:
         tick = cnt[C_TICK]
         t_mid = (tick + 0.5) * dt
+        batch = min(tick * nbatch // max(ticks_total, 1), nbatch - 1)
         # ---- injection ----------------------------------------------------------------
         if cnt[C_PENDING] >= 0:
             n_new = cnt[C_PENDING]
@@ -401,6 +460,9 @@ def advance3(prm, cnt, n_ticks, sx, sy, sz, sxi, syi,
                     srel[j, 1] = ny_
                     srel[j, 2] = nz_
                 srel[j, 3] = ns
+            if use_probes == 1:
+                _probe_step(prm, probe, rho_hist, batch, ox, oy, oz, dx, dy, dz, cx_, cy_, cz_,
+                            inv_phi)
             if remove or nz_ >= z1:
                 last = cnt[C_NACTIVE] - 1
                 sx[j] = sx[last]; sy[j] = sy[last]; sz[j] = sz[last]

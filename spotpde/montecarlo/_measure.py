@@ -24,7 +24,7 @@ __all__ = ["measure", "particle_frames", "propagator", "displacement_statistics"
 def _da(data, grid, units, long_name, **attrs):
     # CF: lengths in d and times in the case unit are pure numbers (units "1"; "d" would
     # read as a day); the scale goes into the long name and spotpde_units
-    return xr.DataArray(data, dims=("z", "x"), attrs={
+    return xr.DataArray(data, dims=("z", "x") if grid.dims == 2 else ("z", "y", "x"), attrs={
         "units": "1", "long_name": f"{long_name}, in {units.replace('time', 'time unit')}",
         "spotpde_units": units, **attrs})
 
@@ -39,6 +39,8 @@ def measure(result: MCResult, tracer: bool = True) -> xr.Dataset:
     * ``u_x``, ``u_z``: mean particle drift ``u_p`` (d per unit time);
     * ``D_xx``, ``D_xz``, ``D_zz``: ``(1/2T) sum w**2 (dR - <dR>)(dR - <dR>)^T``, the
       mean-field particle diffusivity of the continuum (d**2 per unit time).
+    * 3D runs (``simulate(..., probes=True)`` on a 3D grid): fields on ``(z, y, x)``, with
+      ``u_y``, ``D_yy``, ``D_xy``, ``D_yz`` besides; ``rho_s`` in spots per d**3.
 
     With tracked particles, ``tracer=True`` and the default crossing levels (``grid.z``):
     ``P_height`` (density over x of where the tracked particles first cross each height,
@@ -50,29 +52,31 @@ def measure(result: MCResult, tracer: bool = True) -> xr.Dataset:
     g = result.grid
     coords = {"z": ("z", g.z, {"units": "1", "long_name": "height above the orifice, in particle diameters"}),
               "x": ("x", g.x, {"units": "1", "long_name": "horizontal position, in particle diameters"})}
+    if g.dims == 3:
+        coords["y"] = ("y", g.y, {"units": "1", "long_name": "depth, in particle diameters"})
     ds = xr.Dataset(coords=coords)
     if result.probe is not None:
         bt = result.batch_ticks.astype(float) * result.dt  # duration of each batch
         ok = bt > 0
-        per = result.probe[:, ok] / bt[ok][None, :, None, None]
+        lead = (slice(None),) + (None,) * g.dims
+        per = result.probe[:, ok] / bt[ok][(None,) + lead]
         nb = per.shape[1]
         mean = result.probe.sum(axis=1) / result.t_end
         se = per.std(axis=1, ddof=1) / math.sqrt(nb) if nb > 1 else np.full_like(mean, np.nan)
-        names = [("u_x", "d / time", "particle drift u_p, x component"),
-                 ("u_z", "d / time", "particle drift u_p, z component"),
-                 ("D_xx", "d**2 / time", "particle diffusivity D_p, xx"),
-                 ("D_xz", "d**2 / time", "particle diffusivity D_p, xz"),
-                 ("D_zz", "d**2 / time", "particle diffusivity D_p, zz")]
+        drifts = ("x", "z") if g.dims == 2 else ("x", "y", "z")
+        pairs = ("xx", "xz", "zz") if g.dims == 2 else ("xx", "yy", "zz", "xy", "xz", "yz")
+        names = ([(f"u_{c}", "d / time", f"particle drift u_p, {c} component") for c in drifts]
+                 + [(f"D_{c}", "d**2 / time", f"particle diffusivity D_p, {c}") for c in pairs])
         for k, (name, units, ln) in enumerate(names):
-            f = 1.0 if k < 2 else 0.5
+            f = 1.0 if k < len(drifts) else 0.5
             ds[name] = _da(f * mean[k], g, units, ln + " (Monte Carlo probes)")
             ds[name + "_se"] = _da(f * se[k], g, units, "standard error of " + name)
-        h2 = g.spacing**2
-        rb = result.rho_hist[ok] / (result.batch_ticks[ok][:, None, None] * h2)
-        ds["rho_s"] = _da(result.rho_hist.sum(axis=0) / (result.n_ticks * h2), g, "1 / d**2",
+        h2 = g.spacing**g.dims
+        rb = result.rho_hist[ok] / (result.batch_ticks[ok][lead] * h2)
+        ds["rho_s"] = _da(result.rho_hist.sum(axis=0) / (result.n_ticks * h2), g, f"1 / d**{g.dims}",
                           "spot density (Monte Carlo)")
         ds["rho_s_se"] = _da(rb.std(axis=0, ddof=1) / math.sqrt(nb) if nb > 1
-                             else np.full(g.shape, np.nan), g, "1 / d**2",
+                             else np.full(g.shape, np.nan), g, f"1 / d**{g.dims}",
                              "standard error of rho_s")
     same_levels = (result.levels.size == g.nz and np.allclose(result.levels, g.z))
     if tracer and result.tracked.size and same_levels:
@@ -233,7 +237,8 @@ def velocity_correlation(result: MCResult, bins: np.ndarray, select=None, compon
 
     Args:
         bins: separation bin edges in d.
-        select: boolean mask over tracked particles. component: ``"x"`` or ``"z"``.
+        select: boolean mask over tracked particles. component: ``"x"`` or ``"z"``, or
+            ``"y"`` (the depth) for a 3D run.
         skip: number of initial windows to drop.
         centre: ``"ensemble"`` (default, unbiased) or ``"window"``.
 
@@ -245,7 +250,14 @@ def velocity_correlation(result: MCResult, bins: np.ndarray, select=None, compon
     if centre not in ("ensemble", "window"):
         raise ValueError(f"centre: must be 'ensemble' or 'window', got {centre!r}")
     dx, dz, tau, start = _windows(result, select)
-    d = (dx if component == "x" else dz)[skip:]
+    if component not in ("x", "z", "y") or (component == "y" and start.shape[-1] != 3):
+        raise ValueError(f"component: must be 'x' or 'z' (or 'y' in 3D), got {component!r}")
+    if component == "y":
+        pos = np.concatenate([result.initial[result.tracked][None], result.positions], axis=0)
+        d = np.diff(pos[..., 2] if select is None else pos[:, np.asarray(select), 2], axis=0)
+    else:
+        d = dx if component == "x" else dz
+    d = d[skip:]
     tau = tau[skip:]
     start = start[skip:]
     with np.errstate(invalid="ignore"):

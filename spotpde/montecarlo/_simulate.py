@@ -45,6 +45,7 @@ from ..grid import Grid
 from ..parameters import Orifice, Spots
 from ._particles import blob, lattice, random_packing, tracking
 from ._relax import Relax, particle_diameters, relax_params
+from ._settings import case_settings
 from ._simulate3d import case_particles3d, run3d
 
 STEPS = ("gaussian", "binary")
@@ -160,8 +161,10 @@ class MCResult:
             particle has left.
         levels: crossing heights; ``cross_x``/``cross_t``: ``(n_tracked, n_levels)`` x and
             time at which each tracked particle first fell through each level (NaN: not).
-        probe: ``(5, n_batch, nz, nx)`` probe sums (see ``_mc_kernels.advance``; None in 3D);
-            ``rho_hist``: ``(n_batch, nz, nx)`` spot samples; ``batch_ticks``: ticks per batch.
+        probe: ``(5, n_batch, nz, nx)`` probe sums (see ``_mc_kernels.advance``; 3D:
+            ``(9, n_batch, nz, ny, nx)``, ``_mc3d.advance3``; None without probes);
+            ``rho_hist``: ``(n_batch, nz, nx)`` (3D ``(n_batch, nz, ny, nx)``) spot samples;
+            ``batch_ticks``: ticks per batch.
         counters: injected spots, spot steps, particle updates, cell-list rebuilds.
         wall_time, cpu_time: wall-clock and CPU seconds spent in the numba loop.
         walls: the wall treatment (``"renormalise"`` or ``"truncate"``).
@@ -241,7 +244,7 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
             the probe points, its walls (``"reflecting"``/``"open"``) bound spots and
             particles. A 3D grid (``dims = 3``, e.g. a thin slab with ``y_range`` a few
             d deep) runs the 3D model (``_simulate3d``, docs/packing.md): spots walk in
-            ``x`` and ``y``, the side, front and back walls bound them, no probes.
+            ``x`` and ``y``, the side, front and back walls bound them.
         orifice: spot source on the floor (``rate`` = Q0 in spots per unit time,
             constant).
         spots: ``drift`` v_s (d per unit time), ``b`` and ``b_par`` (d), constants.
@@ -261,7 +264,7 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
         step: vertical step Delta in d (default: a quarter of the kernel's vertical size).
         steps: ``"gaussian"`` steps ``sqrt(2 b0 Delta) xi`` or ``"binary"`` ``+-sqrt(2 b0 Delta)``.
         probes: accumulate the probe fields and the spot density on the grid (default:
-            yes in 2D; the 3D model has none, and refuses ``True``).
+            yes in 2D, no in 3D, where a spot step visits ``(2 R / h)**3`` probes).
         batches: number of time batches for standard errors of probe fields.
         records: number of snapshots of tracked particles (evenly spaced, last at t_end).
         levels: heights at which first crossings are recorded (default ``grid.z``).
@@ -288,10 +291,8 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
         ValueError: invalid parameters (the message names the argument).
     """
     problems = []
-    if grid.dims == 2 and probes is None:
-        probes = True
-    if grid.dims == 3 and probes:
-        problems.append("probes: the 3D Monte Carlo has no probe fields; pass probes=False")
+    if probes is None:
+        probes = grid.dims == 2
     if getattr(kernel, "dims", 2) != grid.dims:
         problems.append(f"kernel: a {getattr(kernel, 'dims', 2)}D kernel in a {grid.dims}D grid")
     v_s = _scalar("spots.drift", spots.drift)
@@ -341,16 +342,17 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
         K.PROFILE_UNIFORM if orifice.profile == "uniform" else K.PROFILE_GAUSSIAN)
     skin = 0.5 if skin is None else float(skin)
     cell = max(kp.reach[0], kp.reach[1], 0.25) + skin
+    batches = max(1, min(int(batches), n_ticks))
     if grid.dims == 3:
         return run3d(grid, orifice, spots, kp, rule=float(rule), gamma=float(gamma),
                      step=step, steps=steps, seed=int(seed), t_end=t_end, dt=dt,
                      n_ticks=n_ticks, Q0=Q0, b0=b0, b_par=b_par, profile=profile, skin=skin,
                      cell=cell, particles=particles, tracked=tracked, records=records,
                      levels=levels, progress=progress, walls=walls, relax=relax,
-                     diameters=diameters, relax_reach=_relax_reach(kp))
+                     diameters=diameters, relax_reach=_relax_reach(kp), probes=bool(probes),
+                     batches=batches)
     ncx = max(1, int(math.ceil((x1 - x0) / cell)))
     ncz = max(1, int(math.ceil((z1 - z0) / cell)))
-    batches = max(1, min(int(batches), n_ticks))
 
     tab_x0, tab_dx = 0.0, 0.0
     phi_tab = np.zeros(0)
@@ -462,8 +464,12 @@ def _relax_reach(kp: KernelParams) -> float:
     return math.log(100.0) * size
 
 
+@case_settings
 def from_case(case, *, particles="lattice", spacing: float = 1.0, **kwargs) -> MCResult:
     """Run the Monte Carlo with a :class:`spotpde.cases.Case`'s parameters.
+
+    The case's ``[montecarlo]`` table (``case.montecarlo``, docs/cases.md) gives the run
+    settings; keywords given here override it, keys it leaves out keep the defaults below.
 
     Args:
         case: a loaded case (2D or 3D); its grid, orifice, spots, kernel and rule are used.

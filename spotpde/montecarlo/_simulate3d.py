@@ -11,7 +11,8 @@ mirrored by reflecting side, front and back walls (removed by open ones); a part
 within reach moves by ``-w(r_p - r_s - lam dR) dR / phi`` with a 3D kernel ``w`` and
 ``phi(x, y)`` the fraction of the kernel inside the walls (:func:`coverage_table3`;
 ``walls = "truncate"``: ``phi = 1``). Relaxation (``relax``) works on spheres
-(``_relax3d``). Probe fields and the spot-density histogram are 2D only.
+(``_relax3d``). With ``probes`` the frozen probes and the spot-density histogram of 2D
+are kept on the 3D grid (``_mc3d._probe_step``; off by default).
 """
 
 from __future__ import annotations
@@ -107,11 +108,12 @@ def coverage_table3(kp, x_range, y_range, spacing: float = 0.02, fine: int = 400
 
 def run3d(grid, orifice, spots, kp, *, rule, gamma, step, steps, seed, t_end, dt, n_ticks,
           Q0, b0, b_par, profile, skin, cell, particles, tracked, records, levels, progress,
-          walls, relax, diameters, relax_reach):
+          walls, relax, diameters, relax_reach, probes=False, batches=20):
     """Run the 3D model with the arguments :func:`~spotpde.montecarlo.simulate` checked
     and derived (lengths in d). Returns an :class:`~spotpde.montecarlo.MCResult` with
     ``(N, 3)`` positions in columns ``(x, z, y)`` (the first two as in 2D, the depth
-    last; the order of ``spotpde.analysis.packing``) and no probes."""
+    last; the order of ``spotpde.analysis.packing``); with ``probes`` the probe sums
+    ``(9, batches, nz, ny, nx)`` on the grid's cell centres (``_mc3d.advance3``)."""
     from ._simulate import STEPS, MCResult
 
     if kp.dims != 3:
@@ -135,7 +137,11 @@ def run3d(grid, orifice, spots, kp, *, rule, gamma, step, steps, seed, t_end, dt
         skin=skin, dt=dt, tab_x0=tab[0], tab_dx=tab[1], tab_y0=tab[2], tab_dy=tab[3],
         shape=kp.shape, profile=profile, slot=int(slot),
         walls=K.WALLS_OPEN if grid.walls == "open" else K.WALLS_REFLECTING,
-        steps=STEPS.index(steps), ncx=ncx, ncy=ncy, ncz=ncz, ticks_total=n_ticks)
+        steps=STEPS.index(steps), ncx=ncx, ncy=ncy, ncz=ncz, ticks_total=n_ticks,
+        probe_x0=grid.x[0], probe_y0=grid.y[0], probe_z0=grid.z[0], probe_h=grid.spacing,
+        pnx=grid.nx, pny=grid.ny, pnz=grid.nz, n_batch=batches, probes=int(bool(probes)))
+    shape = (batches, grid.nz, grid.ny, grid.nx) if probes else (1, 1, 1, 1)
+    probe, rho_hist = np.zeros((9,) + shape), np.zeros(shape)
     phi_tab = np.ascontiguousarray(tab[4])
 
     P = np.zeros((0, 3)) if particles is None else np.asarray(particles, dtype=float)
@@ -176,7 +182,7 @@ def run3d(grid, orifice, spots, kp, *, rule, gamma, step, steps, seed, t_end, dt
         t0, c0 = time.perf_counter(), time.process_time()
         advance3(prm, cnt, todo, sx, sy, sz, sxi, syi, px, py, pz, status, moved, cell_start,
                  cell_idx, track_slot, tpos, rec_ticks, levels, lev_next, cross_x, cross_t,
-                 exit_x, exit_t, phi_tab, rp, diam, srel, blk, old)
+                 exit_x, exit_t, phi_tab, rp, diam, srel, blk, old, probe, rho_hist)
         wall += time.perf_counter() - t0
         cpu += time.process_time() - c0
         if cnt[K.C_PENDING] >= 0:  # spot arrays full: grow and carry on
@@ -192,8 +198,10 @@ def run3d(grid, orifice, spots, kp, *, rule, gamma, step, steps, seed, t_end, dt
         steps=steps, seed=seed, t_end=t_end, dt=dt, n_ticks=n_ticks, initial=P.copy(),
         final=np.column_stack([px, pz, py]), status=status, exit_x=exit_x, exit_t=exit_t,
         tracked=tracked, times=(rec_ticks + 1) * dt, positions=tpos, levels=levels,
-        cross_x=cross_x, cross_t=cross_t, probe=None, rho_hist=None,
-        batch_ticks=np.array([n_ticks]),
+        cross_x=cross_x, cross_t=cross_t, probe=probe if probes else None,
+        rho_hist=rho_hist if probes else None,
+        batch_ticks=np.bincount(np.arange(n_ticks) * batches // n_ticks, minlength=batches)
+        if probes else np.array([n_ticks]),
         counters={"spots_injected": int(cnt[K.C_INJECTED]), "spot_steps": int(cnt[K.C_STEPS]),
                   "particle_updates": int(cnt[K.C_UPDATES]),
                   "cell_rebuilds": int(cnt[K.C_REBUILDS]), "spots_removed": int(cnt[K.C_REMOVED]),

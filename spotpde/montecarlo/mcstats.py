@@ -211,7 +211,8 @@ def discard(result, t: float):
 
 
 def positions_at(result, t: float, tol: float | None = None) -> np.ndarray:
-    """Tracked particle positions ``(n_tracked, 2)`` at snapshot time ``t`` (NaN: gone).
+    """Tracked particle positions ``(n_tracked, 2)`` (3D: ``(n_tracked, 3)``, columns
+    ``(x, z, y)``) at snapshot time ``t`` (NaN: gone).
 
     ``t = 0`` is the initial state. Raises ValueError if no snapshot lies within ``tol``
     (default half a tick) of ``t``.
@@ -228,9 +229,10 @@ def positions_at(result, t: float, tol: float | None = None) -> np.ndarray:
 
 
 def particle_density(grid: Grid, points, weights=None) -> np.ndarray:
-    """Particle positions as a tracer density on the grid (2D), normalised to 1.
+    """Particle positions as a tracer density on the grid, normalised to 1.
 
-    ``P0[k, i] = (number of points in cell (k, i)) / (N h**2)``: the empirical
+    ``P0[k, i] = (number of points in cell (k, i)) / (N h**2)`` (3D: cells ``(k, j, i)``
+    of ``(z, y, x)``, ``/ (N h**3)``): the empirical
     distribution of the particles, cell-averaged. The continuum tracer is linear, so
     started from this ``P0`` it predicts the mean over these particles of any
     single-particle probability (such as having drained by time ``t``), up to the
@@ -238,24 +240,28 @@ def particle_density(grid: Grid, points, weights=None) -> np.ndarray:
     ``P0`` of several replicas gives the prediction for the replica average.
 
     Args:
-        grid: 2D grid.
-        points: ``(N, 2)`` positions ``(x, z)``; rows with NaN (gone) are ignored.
+        grid: 2D or 3D rectangular grid.
+        points: ``(N, 2)`` positions ``(x, z)``, 3D ``(N, 3)`` in columns ``(x, z, y)``
+            (the Monte Carlo's order); rows with NaN (gone) are ignored.
         weights: optional per-point weights (default 1).
 
     Raises:
-        ValueError: 3D grid, wrong shape, or no point inside the grid.
+        ValueError: wrong shape, or no point inside the grid.
     """
-    if grid.dims != 2:
-        raise ValueError(f"grid: particle_density is 2D, got dims={grid.dims}")
     p = np.asarray(points, dtype=float)
-    if p.ndim != 2 or p.shape[1] != 2:
-        raise ValueError(f"points: need an (N, 2) array of (x, z), got shape {p.shape}")
+    if p.ndim != 2 or p.shape[1] != grid.dims:
+        raise ValueError(f"points: need an (N, {grid.dims}) array of "
+                         f"{'(x, z)' if grid.dims == 2 else '(x, z, y)'}, got shape {p.shape}")
     w = np.ones(len(p)) if weights is None else np.asarray(weights, dtype=float)
     ok = np.isfinite(p).all(axis=1)
     h = grid.spacing
     ex = np.concatenate([grid.x - 0.5 * h, [grid.x[-1] + 0.5 * h]])
     ez = np.concatenate([grid.z - 0.5 * h, [grid.z[-1] + 0.5 * h]])
-    H, _, _ = np.histogram2d(p[ok, 1], p[ok, 0], bins=[ez, ex], weights=w[ok])
+    if grid.dims == 3:
+        ey = np.concatenate([grid.y - 0.5 * h, [grid.y[-1] + 0.5 * h]])
+        H, _ = np.histogramdd(p[ok][:, [1, 2, 0]], bins=[ez, ey, ex], weights=w[ok])
+    else:
+        H, _, _ = np.histogram2d(p[ok, 1], p[ok, 0], bins=[ez, ex], weights=w[ok])
     total = H.sum()
     if not total > 0:
         raise ValueError("points: no particle inside the grid")

@@ -278,8 +278,6 @@ def test_3d_arguments_are_checked():
     g = Grid(3, (-3.0, 3.0), (0.0, 6.0), 1.0, y_range=(-1.0, 1.0))
     k3 = kernels.Uniform(radius=1.0, height=0.01, dims=3)
     common = dict(t_end=1.0)
-    with pytest.raises(ValueError, match="probes"):
-        mc.simulate(g, Orifice(width=2.0, rate=1.0), Spots(), k3, probes=True, **common)
     with pytest.raises(ValueError, match="kernel"):
         mc.simulate(g, Orifice(width=2.0, rate=1.0), Spots(),
                     kernels.Uniform(radius=1.0, height=0.01, dims=2), probes=False, **common)
