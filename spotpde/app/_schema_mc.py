@@ -14,7 +14,7 @@ given to ``from_case`` overrides the table. The names are those keywords:
 ``margin``).
 
 The choices are spelled out here rather than imported, so that checking a case does not
-load the Monte Carlo's compiled kernels; ``tests/test_montecarlo_case.py`` checks they
+load the Monte Carlo's compiled kernels; ``tests/montecarlo/test_montecarlo_case.py`` checks they
 match ``montecarlo.STEPS`` and ``montecarlo.DISTRIBUTIONS``.
 """
 

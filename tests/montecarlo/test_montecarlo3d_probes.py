@@ -122,7 +122,7 @@ def test_3d_case_table_replicas_and_probes():
 
     import spotpde
 
-    data = spotpde.load_case(Path(__file__).parents[1] / "cases" / "slab3d.toml").data
+    data = spotpde.load_case(Path(__file__).parents[2] / "cases" / "slab3d.toml").data
     data = {**data, "domain": {**data["domain"], "x": [-6.0, 6.0], "z": [0.0, 12.0],
                                "spacing": 1.0},
             "orifice": {**data["orifice"], "width": 4.0},

@@ -20,7 +20,7 @@ from spotpde import montecarlo as mc
 from spotpde.app import _schema_mc, cli
 from spotpde.app.cases import load_case
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def small(montecarlo=None):
