@@ -11,9 +11,7 @@ from spotpde.density.orifice import cosine_coefficients, rate_from_table, source
 from spotpde.grid import Grid
 from spotpde.parameters import Orifice, Spots
 
-
-def cylinder(a, H, h, walls="reflecting"):
-    return Grid(2, (0, a), (0, H), h, walls, coordinates="axisymmetric")
+from _grids import cylinder
 
 
 def flux(g, rho, v=1.0):

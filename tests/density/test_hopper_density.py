@@ -7,18 +7,16 @@ import pytest
 from spotpde.density import _geometry, kinematic, traffic
 from spotpde.density import spot_density as sd
 from spotpde.density.orifice import source_profile
-from spotpde.grid import Grid, Hopper
 from spotpde.parameters import Orifice, Spots
+
+from _grids import hopper
 
 W = 2.0      # orifice width (diameter of the cone's orifice)
 ACCURACY = 0.07   # staircase: relative error of <x^2> and the centreline rho_s <= 0.07 h / d
 
 
 def hopper_grid(axi, angle, h, shift=0.0, H=8.0, half=6.0, walls="reflecting"):
-    if axi:
-        return Grid(2, (0, half), (0, H), h, walls, coordinates="axisymmetric",
-                    hopper=Hopper(angle, 0.0, W / 2))
-    return Grid(2, (-half + shift, half + shift), (0, H), h, walls, hopper=Hopper(angle, 0.0, W / 2))
+    return hopper(angle, half, H, h, W / 2, cone=axi, shift=shift, walls=walls)
 
 
 def flux(g, rho, v=1.0):

@@ -26,9 +26,7 @@ from spotpde.fields import coefficients as C, kernels, void
 from spotpde.grid import Grid
 from spotpde.parameters import Spots
 
-
-def _cylinder(a, H, h, walls="reflecting"):
-    return Grid(2, (0.0, a), (0.0, H), h, walls=walls, coordinates="axisymmetric")
+from _grids import cylinder as _cylinder
 
 
 def _blob(grid, s, zc):

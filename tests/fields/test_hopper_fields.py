@@ -21,6 +21,8 @@ from spotpde.density import spot_density
 from spotpde.grid import Grid, Hopper
 from spotpde.parameters import Orifice, Spots
 
+from _grids import hopper
+
 
 def _staircase_density(grid, b=1.3, Q0=1.0):
     """Steady spot density on ``grid.active`` (``v_s = 1``, ``b_par = 0``): implicit
@@ -104,11 +106,11 @@ def test_vertical_hopper_is_a_silo_of_the_orifice_width(axisymmetric, rule):
 def test_every_spot_at_an_inclined_wall_displaces_V1(axisymmetric):
     h = 0.125
     if axisymmetric:
-        g = Grid(2, (0.0, 8.0), (0.0, 16.0), h, coordinates="axisymmetric", hopper=Hopper(30.0, 0.0, 1.5))
+        g = hopper(30.0, 8.0, 16.0, h, 1.5, cone=True)
         kernel = kernels.Uniform(radius=1.5, height=0.01, dims=3)
         vol = g.cell_volumes * np.ones(g.shape)
     else:
-        g = Grid(2, (-8.0, 8.0), (0.0, 16.0), h, hopper=Hopper(30.0, 0.0, 1.5))
+        g = hopper(30.0, 8.0, 16.0, h, 1.5)
         kernel = kernels.Gaussian(sigma=0.8, volume=0.05, dims=2, aspect=1.5)
         vol = np.full(g.shape, h * h)
     k = g.nz // 2
@@ -129,10 +131,10 @@ def test_every_spot_at_an_inclined_wall_displaces_V1(axisymmetric):
 def test_hopper_fields_vanish_outside_the_material_and_keep_the_flux(axisymmetric):
     h = 0.25
     if axisymmetric:
-        g = Grid(2, (0.0, 8.0), (0.0, 16.0), h, coordinates="axisymmetric", hopper=Hopper(30.0, 0.0, 1.5))
+        g = hopper(30.0, 8.0, 16.0, h, 1.5, cone=True)
         kernel = kernels.Uniform(radius=1.5, height=0.01, dims=3)
     else:
-        g = Grid(2, (-8.0, 8.0), (0.0, 16.0), h, hopper=Hopper(30.0, 0.0, 1.5))
+        g = hopper(30.0, 8.0, 16.0, h, 1.5)
         kernel = kernels.Uniform(radius=1.5, height=0.01, dims=2)
     rho = _staircase_density(g)
     rz = kernel.reach[1]
@@ -158,9 +160,9 @@ def test_hopper_fields_vanish_outside_the_material_and_keep_the_flux(axisymmetri
 def test_void_fields_in_a_hopper(axisymmetric):
     h = 0.25
     if axisymmetric:
-        g = Grid(2, (0.0, 8.0), (0.0, 16.0), h, coordinates="axisymmetric", hopper=Hopper(30.0, 0.0, 1.5))
+        g = hopper(30.0, 8.0, 16.0, h, 1.5, cone=True)
     else:
-        g = Grid(2, (-8.0, 8.0), (0.0, 16.0), h, hopper=Hopper(30.0, 0.0, 1.5))
+        g = hopper(30.0, 8.0, 16.0, h, 1.5)
     rho = _staircase_density(g)
     spots = Spots(b=0.5, b_par=0.1)
     f = void.void_fields(g, rho, spots, 1.0)
@@ -194,14 +196,14 @@ def test_wall_layer_of_the_staircase_is_the_gradient_of_the_coverage(axisymmetri
     errs = []
     for h in (0.25, 0.125):
         if axisymmetric:
-            g = Grid(2, (0.0, 10.0), (0.0, H), h, coordinates="axisymmetric", hopper=Hopper(40.0, 0.0, 1.5))
+            g = hopper(40.0, 10.0, H, h, 1.5, cone=True)
             kernel = kernels.Gaussian(sigma=1.0, volume=0.05, dims=3)
             W = _rings.ring_weights(kernel, h, g.nx, 1, 0)
             mz = (W.shape[0] - 1) // 2
             chi = np.pad(g.active.astype(float), ((mz, mz), (0, 0)), mode="edge")
             cover = _rings.ring_convolve([chi], W)[0][mz:mz + g.nz]
         else:
-            g = Grid(2, (-10.0, 10.0), (0.0, H), h, hopper=Hopper(40.0, 0.0, 1.5))
+            g = hopper(40.0, 10.0, H, h, 1.5)
             kernel = kernels.Gaussian(sigma=1.0, volume=0.05, dims=2)
             cover = kernel.V1 * _walls.coverage(g, kernel, g.active.astype(float))
         rho = np.where(g.active, 2.0, 0.0)

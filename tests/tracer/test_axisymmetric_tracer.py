@@ -19,11 +19,13 @@ from scipy.interpolate import RegularGridInterpolator
 from spotpde import tracer
 from spotpde.grid import Grid
 
+from _grids import cylinder
+
 RADIUS, TOP, D, ALPHA, W, Z0, S0, T_END = 10.0, 14.0, 0.2, 0.05, 0.5, 8.0, 2.0, 10.0
 
 
 def _axi_grid(h, walls="reflecting", radius=RADIUS, z=(0.0, TOP)):
-    return Grid(2, (0.0, radius), z, h, walls=walls, coordinates="axisymmetric")
+    return cylinder(radius, z[1], h, walls, bottom=z[0])
 
 
 def _converging_axi(grid, alpha=ALPHA, d_rz=0.0):

@@ -17,12 +17,11 @@ import pytest
 from spotpde import tracer
 from spotpde.grid import Grid, Hopper
 
+from _grids import hopper
+
 
 def _wedge(h, axisymmetric=False, angle=30.0, half_width=1.0):
-    if axisymmetric:
-        return Grid(2, (0.0, 8.0), (0.0, 16.0), h, coordinates="axisymmetric",
-                    hopper=Hopper(angle, 0.0, half_width))
-    return Grid(2, (-8.0, 8.0), (0.0, 16.0), h, hopper=Hopper(angle, 0.0, half_width))
+    return hopper(angle, 8.0, 16.0, h, half_width, cone=axisymmetric)
 
 
 def _keys(grid):
