@@ -109,7 +109,7 @@ class Case:
         self.kernel_spec = {"shape": k["shape"], "size": k["size"], "volume": volume,
                             "aspect": k["aspect"],
                             # an axisymmetric silo is 3D: its spots have a 3D kernel
-                            "dims": 3 if self.grid.axisymmetric else d["dims"]}
+                            "dims": self.grid.geometry.kernel_dims}
         self._kernel = None
 
     # -- derived --------------------------------------------------------------------

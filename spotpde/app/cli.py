@@ -92,10 +92,8 @@ def cmd_check(args) -> int:
     _check_outputs([("output.path", case.output_path, None)], inputs=[args.case])
     g = case.grid
     cells = " x ".join(str(n) for n in g.shape)
-    where = f"{g.dims}D" if not g.axisymmetric else "axisymmetric (z, r)"
-    if g.hopper is not None:
-        where += f", hopper {g.hopper.angle:g} degrees"
-    _say(f"spotpde: {args.case} is valid ({where}, {cells} cells, model {case.model})")
+    _say(f"spotpde: {args.case} is valid ({g.geometry.description}, {cells} cells, "
+         f"model {case.model})")
     _estimate(case, getattr(args, "allow_long", False))
     return EXIT_OK
 

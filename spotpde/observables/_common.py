@@ -61,11 +61,7 @@ def case_for(source, case) -> Case:
 def grid_of(case: Case):
     """The case's grid, which must be a 2D Cartesian silo (a hopper mask is fine)."""
     g = case.grid
-    if g.dims != 2 or g.axisymmetric:
-        raise ValueError(f"case: observables are measured on 2D Cartesian silos (domain.dims = 2, "
-                         f"domain.coordinates = 'cartesian'), got dims = {g.dims}"
-                         + (", axisymmetric" if g.axisymmetric else "")
-                         + "; read a thin 3D silo with spotpde.tracks.read(..., dims=2)")
+    g.geometry.require("track observables", "case")
     return g
 
 
