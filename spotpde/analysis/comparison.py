@@ -393,13 +393,13 @@ def plot_comparison(comparisons: Mapping[float, KinematicComparison], path=None)
     Args:
         comparisons: ``{lam: KinematicComparison}`` (e.g. from :func:`compare_rules`).
         path: where to save the figure (the format of its extension, written
-            atomically: :func:`spotpde.app._figures.save_figure`); ``None`` returns the
+            atomically: :func:`spotpde._figures.save_figure`); ``None`` returns the
             figure unsaved.
 
     Returns:
         The matplotlib figure.
     """
-    from ..app._figures import figure_format, prepare_matplotlib, save_figure
+    from .._figures import figure_format, prepare_matplotlib, save_figure
 
     if path is not None:
         figure_format(path)          # an unsupported extension: refused before drawing

@@ -23,10 +23,12 @@ from __future__ import annotations
 
 import os
 import tomllib
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
+import tomli_w
 
 from ..errors import CaseError
 from ..grid import Grid, Hopper
@@ -329,8 +331,6 @@ def _check_kernel(case: Case) -> None:
 def _warn_wide_kernel(data: Mapping) -> None:
     """Warn when the kernel's size (R, sigma or decay length) spans more than the domain:
     every spot then moves the whole silo, and the fields are mostly the walls' images."""
-    import warnings
-
     d, k = data["domain"], data["kernel"]
     width, height = d["x"][1] - d["x"][0], d["z"][1] - d["z"][0]
     depth = d["y"][1] - d["y"][0] if "y" in d and d["dims"] == 3 else width
@@ -384,8 +384,6 @@ def dump_toml(data: Mapping) -> str:
     Returns:
         TOML text that :func:`tomllib.loads` reads back to an equal mapping.
     """
-    import tomli_w
-
     def drop_none(node):
         if isinstance(node, Mapping):
             return {k: drop_none(v) for k, v in node.items() if v is not None}

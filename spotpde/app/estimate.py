@@ -48,6 +48,7 @@ import math
 
 import numpy as np
 
+from .._roundoff import clip_roundoff
 from ..errors import CaseError
 
 #: Cell updates per second of one SSP-RK3 step, by reconstruction (one thread).
@@ -163,7 +164,6 @@ def case_estimate(case) -> dict | None:
     if not _estimated(case):
         return None
     from ..density import spot_density
-    from .._roundoff import clip_roundoff
     from .pipeline import case_fields
     rho = clip_roundoff(np.asarray(spot_density.solve(case.grid, case.orifice, case.spots),
                                    dtype=float))

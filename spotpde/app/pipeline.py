@@ -39,7 +39,7 @@ from .cases import Case, check_arguments, load_case
 from ..errors import CaseError, NumericalError
 from .._roundoff import clip_roundoff
 from .io import cf_attrs, FrameWriter, make_dataset, NETCDF_LOCK, write_netcdf
-from ._outputs import held_signals
+from ._outputs import held_signals, output_problem
 from ..parameters import TracerStart, in_bands
 
 #: The pipeline's stages, in order, as reported to ``progress``.
@@ -88,7 +88,6 @@ def run(case: Case | str, progress: Progress | None = None, *,
     if not isinstance(case, Case):
         case = load_case(case)
     if path is not None:   # before computing: a missing or read-only directory, ...
-        from ._outputs import output_problem
 
         problem = output_problem(path, inputs=[case.source] if case.source else ())
         if problem:

@@ -288,9 +288,9 @@ def plot_space_time(ds, variable: str = "free_volume_t", x: float | None = None,
     density of the later half of the run mark the speed of small waves: meaningful only
     for a nearly uniform column.
     Returns the matplotlib Figure; ``path`` also saves it (the format of its extension,
-    written atomically: :func:`spotpde.app._figures.save_figure`).
+    written atomically: :func:`spotpde._figures.save_figure`).
     """
-    from ..app._figures import figure_format, prepare_matplotlib, save_figure
+    from .._figures import figure_format, prepare_matplotlib, save_figure
 
     if path is not None:
         figure_format(path)          # an unsupported extension: refused before drawing

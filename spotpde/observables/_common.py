@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import os
+import tomllib
 from collections.abc import Callable, Mapping
 
 import numpy as np
@@ -51,8 +52,6 @@ def case_for(source, case) -> Case:
             raise TypeError(f"case: must be a Case, a case file or a mapping, got {type(case).__name__}")
         return load_case(case)
     if isinstance(source, xr.Dataset) and "case" in source.attrs and not is_tracks(source):
-        import tomllib
-
         return load_case(tomllib.loads(source.attrs["case"]))
     raise ValueError("case: give the case the tracks come from (its grid, orifice and walls "
                      "define the observables)")
