@@ -41,7 +41,7 @@ from scipy.linalg import solve_banded
 
 from ..geometry import derivative, masked_derivative
 from ..grid import Grid
-from ..parameters import Spots
+from ..parameters import Spots, drift_weight
 
 #: Staggered ("triangular-like") lattice: a void steps up one row and left or right by
 #: one site with probability 1/2 each. Step variance 1 site**2 per row: ``b = 1/2``
@@ -356,14 +356,14 @@ def void_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, V1: float,
     Fz = rho * D_par
     ax = {a: i for i, a in enumerate(grid.axes)}
     out = {
-        "u_x": 2.0 * lam * V1 * derivative(Fh, h, ax["x"]),
-        "u_z": -V1 * (rho * v_s - 2.0 * lam * derivative(Fz, h, ax["z"])),
+        "u_x": drift_weight(lam) * V1 * derivative(Fh, h, ax["x"]),
+        "u_z": -V1 * (rho * v_s - drift_weight(lam) * derivative(Fz, h, ax["z"])),
         "D_xx": V1 * Fh,
         "D_xz": np.zeros(grid.shape),
         "D_zz": V1 * Fz,
     }
     if grid.dims == 3:
-        out["u_y"] = 2.0 * lam * V1 * derivative(Fh, h, ax["y"])
+        out["u_y"] = drift_weight(lam) * V1 * derivative(Fh, h, ax["y"])
         out["D_yy"] = V1 * Fh.copy()
         out["D_xy"] = np.zeros(grid.shape)
         out["D_yz"] = np.zeros(grid.shape)
@@ -393,8 +393,8 @@ def _staircase_void_fields(grid: Grid, rho: np.ndarray, spots: Spots, V1: float,
     axi = grid.geometry.has_axis          # even across the axis r = 0
     h_key = grid.geometry.components[0]
     out = {
-        f"u_{h_key}": 2.0 * lam * V1 * masked_derivative(Fh, h, 1, act, even_axis=axi),
-        "u_z": -V1 * (rho * v_s - 2.0 * lam * masked_derivative(Fz, h, 0, act)),
+        f"u_{h_key}": drift_weight(lam) * V1 * masked_derivative(Fh, h, 1, act, even_axis=axi),
+        "u_z": -V1 * (rho * v_s - drift_weight(lam) * masked_derivative(Fz, h, 0, act)),
         f"D_{h_key}{h_key}": V1 * Fh,
         f"D_{h_key}z": np.zeros(grid.shape),
         "D_zz": V1 * Fz,
