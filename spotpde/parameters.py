@@ -121,6 +121,8 @@ class Spots:
     rho_max: float | None = None
     flux: str = "greenshields"
     diffusion_scaling: str = "fixed"
+    #: interacting spots: frames saved on ``[0, t_end]`` (``spots.frames``)
+    frames: int = 101
 
     @property
     def D_perp(self) -> Coefficient:
@@ -182,3 +184,41 @@ class Tracer:
 def _is_array(*values) -> bool:
     return any(np.ndim(v) > 0 for v in values)
 
+
+@dataclass(frozen=True)
+class PairParams:
+    """Cage breaking of a pair at a point of the flow (``[pair]``, :mod:`spotpde.pair`).
+
+    Args:
+        x, z: the point of the flow where the pair falls, in d.
+        contact: the hard-core distance in d.
+        separation: the cage's radius in d (> ``contact``).
+        start: the initial separation ``(x, z)`` in d, ``"contact"`` (uniform over the
+            contact directions) or ``None`` (the solver's default).
+        spacing: the solver's cell size in d (``None``: ``contact / 16``).
+        frames: frames of the separation's density.
+    """
+
+    x: float
+    z: float
+    contact: float = 1.0
+    separation: float = 2.0
+    start: tuple[float, float] | str | None = None
+    spacing: float | None = None
+    frames: int = 8
+
+
+@dataclass(frozen=True)
+class ComparisonSettings:
+    """What a case says about its flow beyond the typed orifice and spots that the
+    comparison with the Kinematic Model must know (:func:`spotpde.comparison.case_problems`
+    names these keys when it refuses).
+
+    Args:
+        rate: where ``Q0`` comes from: ``"constant"``, ``"table"`` (``orifice.rate`` a
+            table of times and values) or ``"noise"`` (``orifice.noise``).
+        profiles: the spot keys given as profiles instead of numbers (``"b"``, ``"drift"``).
+    """
+
+    rate: str = "constant"
+    profiles: tuple[str, ...] = ()

@@ -259,3 +259,43 @@ def test_cases_still_speak_in_case_keys(tmp_path):
     with pytest.raises(spotpde.CaseError, match="kernel.rule"):
         spotpde.load_case(data)
 
+
+# -- typed parameters ----------------------------------------------------------------------
+
+#: Units that may read a case's raw mapping: the app builds the typed objects from it,
+#: and calibration fits parameters named by their case keys (and reloads the case).
+READS_CASE_DATA = {"app", "cli", "calibration"}
+
+
+def _reads_case_data(n):
+    return isinstance(n, ast.Attribute) and n.attr == "data" \
+        and isinstance(n.value, ast.Name) and n.value.id == "case"
+
+
+def test_no_stage_reads_the_raw_case():
+    reads = [s for s in _literals(_reads_case_data) if _unit(s.split(":")[0]) not in READS_CASE_DATA]
+    assert reads == []
+    assert _literals(_reads_case_data)     # the detector finds the app's reads
+
+
+def test_the_case_builds_the_typed_pair_spots_and_comparison_settings():
+    import spotpde
+    from spotpde.analysis.comparison import case_problems
+    from spotpde.parameters import ComparisonSettings, PairParams
+
+    base = {"domain": {"dims": 2, "x": [-6.0, 6.0], "z": [0.0, 12.0], "spacing": 1.0}}
+    case = spotpde.load_case(base)
+    assert case.pair is None and case.spots.frames == 101
+    assert case.comparison == ComparisonSettings("constant", ())
+    case = spotpde.load_case({**base, "pair": {"x": 0.0, "z": 6.0, "start": {"x": 1.5, "z": 0.0}},
+                              "spots": {"b": {"z": [0.0, 12.0], "values": [1.0, 1.3]},
+                                        "frames": 7, "rho_max": 2.0, "mode": "transient",
+                                        "t_end": 1.0},
+                              "orifice": {"width": 2.0, "rate": {"times": [0.0, 1.0],
+                                                                 "values": [1.0, 2.0]}}})
+    assert case.pair == PairParams(x=0.0, z=6.0, contact=1.0, separation=2.0,
+                                   start=(1.5, 0.0), spacing=None, frames=8)
+    assert case.spots.frames == 7
+    assert case.comparison == ComparisonSettings("table", ("b",))
+    problems = case_problems(case)
+    assert [p.split(":")[0] for p in problems] == ["spots.rho_max", "orifice.rate", "spots.b"]

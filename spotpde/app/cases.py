@@ -32,7 +32,8 @@ import tomli_w
 
 from ..errors import CaseError
 from ..grid import Grid, Hopper
-from ..parameters import Orifice, Spots, Tracer, TracerStart
+from ..parameters import (ComparisonSettings, Orifice, PairParams, Spots, Tracer,
+                          TracerStart)
 from ._consistency import check_consistency
 from ._nesting import MAX_NESTING, text_problem
 from ._resources import (BASELINE_BYTES, MEMORY_FRACTION, auto_snapshots, available_memory,
@@ -66,6 +67,9 @@ class Case:
         orifice: :class:`spotpde.parameters.Orifice`.
         spots: :class:`spotpde.parameters.Spots`.
         tracer: :class:`spotpde.parameters.Tracer`, or ``None`` without a ``[tracer]`` table.
+        pair: :class:`spotpde.parameters.PairParams`, or ``None`` without a ``[pair]`` table.
+        comparison: :class:`spotpde.parameters.ComparisonSettings` (where the rate and
+            the spot profiles come from).
         rule: lam, where along a spot step its influence is evaluated (1 for the void model).
         tracer_options: keyword options of ``spotpde.tracer.solve`` (``limiter``, ``cfl``,
             ``diffusion``, ``stepping``, ``tol``, ``split``), empty without a tracer.
@@ -100,7 +104,18 @@ class Case:
                            b_par=_field(s["b_par"], self.grid), mode=s["mode"],
                            t_end=s["t_end"], rho_max=s.get("rho_max"),
                            flux=s.get("flux") or "greenshields",
-                           diffusion_scaling=s.get("diffusion_scaling") or "fixed")
+                           diffusion_scaling=s.get("diffusion_scaling") or "fixed",
+                           frames=s.get("frames") or 101)
+        p = data.get("pair")
+        start = None if p is None else p.get("start")
+        self.pair = None if p is None else PairParams(
+            x=p["x"], z=p["z"], contact=p["contact"], separation=p["separation"],
+            start=(start["x"], start["z"]) if isinstance(start, Mapping) else start,
+            spacing=p.get("spacing"), frames=p["frames"])
+        self.comparison = ComparisonSettings(
+            rate=("noise" if o.get("noise") is not None
+                  else "table" if isinstance(o["rate"], Mapping) else "constant"),
+            profiles=tuple(key for key in ("b", "drift") if isinstance(s[key], Mapping)))
         self.tracer = _tracer(data.get("tracer"), self.grid, self.orifice)
         t = data.get("tracer")
         self.tracer_options = ({} if t is None else

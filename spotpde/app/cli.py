@@ -140,7 +140,7 @@ def _run_libraries(case) -> None:
                  "spotpde.fields.convolution" if particle else None,   # pyfftw
                  "spotpde.tracer" if case.tracer is not None else None,
                  "spotpde.density.traffic" if case.spots.rho_max is not None else None,
-                 "spotpde.pair" if case.data.get("pair") is not None else None):
+                 "spotpde.pair" if case.pair is not None else None):
         if name is not None:
             importlib.import_module(name)
 

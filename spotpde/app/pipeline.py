@@ -257,7 +257,7 @@ def _run(case: Case, progress: Progress | None, open_frames=None,
     ds = make_dataset(grid, out, times=times, attrs=attrs)
     if interacting is not None:
         ds = importlib.import_module("spotpde.density.traffic").add_outputs(ds, case, interacting)
-    if case.data.get("pair") is not None:     # cage breaking at a point (spotpde.pair)
+    if case.pair is not None:     # cage breaking at a point (spotpde.pair)
         ds = importlib.import_module("spotpde.pair").add_to_result(case, ds)
     return ds
 

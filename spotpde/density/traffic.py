@@ -198,7 +198,7 @@ def solve_case(case, progress=None) -> CaseResult:
     Frames: ``spots.frames`` equally spaced times on ``[0, spots.t_end]`` (default 101).
     """
     t_end = float(case.spots.t_end)
-    n = case.data["spots"].get("frames") or 101
+    n = case.spots.frames
     times = np.linspace(0.0, t_end, int(n))
     res = transient(case.grid, case.orifice, case.spots, t_end, times, progress=progress,
                     full_output=True)
