@@ -186,33 +186,51 @@ def diffusion(source, case=None, *, fall: float = 1.0, bins=(5.0, 5.0), region=N
              "Pe_x": units("1", "horizontal Peclet number d/b_p"),
              "Pe_z": units("1", "vertical Peclet number d/b_p_par")}
     if not is_tracks(source):
-        u = model_velocity(source, case)
-        speed = np.where(u["u_z"] < 0, -u["u_z"], np.nan)
-        weights = (like["segment_histogram"].values if like is not None
-                   else grid_active(grid).astype(float))
-        weights = weights * (((grid.x >= x0) & (grid.x <= x1))[None, :]
-                             & ((grid.z >= z0) & (grid.z <= z1))[:, None])
-        ds = xr.Dataset(coords=_bin_coords(ez, ex), attrs=attrs)
-        Z, X = np.meshgrid(grid.z, grid.x, indexing="ij")
-        index = _bin_index(ez, ex, Z.ravel(), X.ravel())
-        nb = (ez.size - 1) * (ex.size - 1)
-        bias = _estimator_bias(u, speed, velocity, fall)
-        focus = _focusing(grid, u, speed, fall)
-        for name, comp in (("b_p", "D_xx"), ("b_p_par", "D_zz")):
-            val = np.asarray(source[comp].values, float) / speed * focus[name]
-            good = np.isfinite(val) & (weights > 0)
-            mean = _bin_mean(index, nb, val, weights, good)
-            if bias is not None:   # what the data's own mean flow adds to the estimator
-                e = bias[name]
-                ok = good & np.isfinite(e)
-                m1 = _bin_mean(index, nb, e, weights, ok)
-                m2 = _bin_mean(index, nb, e * e, weights, ok)
-                mean = mean + np.nan_to_num(m2 - m1 * m1) / (2.0 * fall)
-            ds[name] = (("z_bin", "x_bin"), mean.reshape(ez.size - 1, ex.size - 1), names[name])
-        with np.errstate(divide="ignore"):
-            ds["Pe_x"] = (("z_bin", "x_bin"), 1.0 / ds["b_p"].values, names["Pe_x"])
-            ds["Pe_z"] = (("z_bin", "x_bin"), 1.0 / ds["b_p_par"].values, names["Pe_z"])
-        return ds
+        return _model_diffusion(source, case, grid, velocity, like, fall, ez, ex,
+                                (x0, x1, z0, z1), attrs, names)
+    return _tracks_diffusion(source, case, grid, velocity, blocks, fall, ez, ex,
+                             (x0, x1, z0, z1), attrs, names, **kwargs)
+
+
+def _model_diffusion(source, case, grid, velocity, like, fall, ez, ex, region, attrs, names):
+    """:func:`diffusion` of a model result: ``D / |u_z|`` averaged over each bin (weights:
+    the tracks' segment histogram ``like`` or the active cells), with the estimator's
+    bias from the tracks' mean flow added."""
+    x0, x1, z0, z1 = region
+    u = model_velocity(source, case)
+    speed = np.where(u["u_z"] < 0, -u["u_z"], np.nan)
+    weights = (like["segment_histogram"].values if like is not None
+               else grid_active(grid).astype(float))
+    weights = weights * (((grid.x >= x0) & (grid.x <= x1))[None, :]
+                         & ((grid.z >= z0) & (grid.z <= z1))[:, None])
+    ds = xr.Dataset(coords=_bin_coords(ez, ex), attrs=attrs)
+    Z, X = np.meshgrid(grid.z, grid.x, indexing="ij")
+    index = _bin_index(ez, ex, Z.ravel(), X.ravel())
+    nb = (ez.size - 1) * (ex.size - 1)
+    bias = _estimator_bias(u, speed, velocity, fall)
+    focus = _focusing(grid, u, speed, fall)
+    for name, comp in (("b_p", "D_xx"), ("b_p_par", "D_zz")):
+        val = np.asarray(source[comp].values, float) / speed * focus[name]
+        good = np.isfinite(val) & (weights > 0)
+        mean = _bin_mean(index, nb, val, weights, good)
+        if bias is not None:   # what the data's own mean flow adds to the estimator
+            e = bias[name]
+            ok = good & np.isfinite(e)
+            m1 = _bin_mean(index, nb, e, weights, ok)
+            m2 = _bin_mean(index, nb, e * e, weights, ok)
+            mean = mean + np.nan_to_num(m2 - m1 * m1) / (2.0 * fall)
+        ds[name] = (("z_bin", "x_bin"), mean.reshape(ez.size - 1, ex.size - 1), names[name])
+    with np.errstate(divide="ignore"):
+        ds["Pe_x"] = (("z_bin", "x_bin"), 1.0 / ds["b_p"].values, names["Pe_x"])
+        ds["Pe_z"] = (("z_bin", "x_bin"), 1.0 / ds["b_p_par"].values, names["Pe_z"])
+    return ds
+
+
+def _tracks_diffusion(source, case, grid, velocity, blocks, fall, ez, ex, region, attrs,
+                      names, **kwargs):
+    """:func:`diffusion` of tracks: the variances of the segments' residual displacements
+    per bin, with jackknife errors over ``blocks`` time blocks."""
+    x0, x1, z0, z1 = region
     x, z, t = positions(source)
     vel = velocity if velocity is not None else velocity_field(source, case, blocks=blocks, **kwargs)
     X, T = crossings(x, z, t, fall, grid.z_range[1])
