@@ -191,30 +191,7 @@ def pair_separation(source, case=None, *, contact: float = 1.1, separation: floa
     x0, x1, z0, z1 = _region(grid, region)
     starts = check_positive("starts", starts, integer=True)
     first = np.unique(np.linspace(0, t.size - 2, min(starts, t.size - 1)).astype(int))
-    rows = []
-    for k in first:
-        ok = np.isfinite(x[:, k]) & np.isfinite(z[:, k])
-        idx = np.nonzero(ok)[0]
-        pts = np.column_stack([x[idx, k], z[idx, k]])
-        ij = cKDTree(pts).query_pairs(contact, output_type="ndarray")
-        if ij.size == 0:
-            continue
-        a, b = idx[ij[:, 0]], idx[ij[:, 1]]
-        zm0 = 0.5 * (z[a, k] + z[b, k])
-        xm0 = 0.5 * (x[a, k] + x[b, k])
-        keep = (xm0 >= x0) & (xm0 <= x1) & (zm0 >= z0) & (zm0 <= z1)
-        a, b, zm0 = a[keep], b[keep], zm0[keep]
-        sep = np.hypot(x[a, k:] - x[b, k:], z[a, k:] - z[b, k:])
-        fall = np.fmax.accumulate(np.nan_to_num(zm0[:, None] - 0.5 * (z[a, k:] + z[b, k:]),
-                                                nan=-np.inf), axis=1)
-        broken = sep >= separation
-        lost = ~np.isfinite(sep)
-        end_b = np.where(broken.any(axis=1), broken.argmax(axis=1), sep.shape[1])
-        end_l = np.where(lost.any(axis=1), lost.argmax(axis=1), sep.shape[1])
-        event = end_b < end_l
-        last = np.where(event, end_b, np.maximum(end_l - 1, 0))
-        f_at = fall[np.arange(a.size), np.minimum(last, sep.shape[1] - 1)]
-        rows.append(np.column_stack([np.maximum(f_at, 0.0), event, np.full(a.size, t[k])]))
+    rows = _cage_events(x, z, t, first, contact, separation, (x0, x1, z0, z1))
     if not rows:
         raise ValueError(f"contact: no pair of tracked particles closer than {contact} d "
                          "in the region at any start frame")
@@ -242,3 +219,36 @@ def pair_separation(source, case=None, *, contact: float = 1.1, separation: floa
         se = np.sqrt((blocks - 1) / blocks * np.nansum((rep - np.nanmean(rep, axis=0)) ** 2, axis=0))
         with_errors(ds, name, ("fall",) if name == "survival" else (), value, se, rep, a)
     return ds
+
+
+def _cage_events(x, z, t, first, contact, separation, region) -> list[np.ndarray]:
+    """For each start frame ``k`` in ``first``: the pairs closer than ``contact`` (d)
+    whose midpoint lies in ``region`` ``(x0, x1, z0, z1)``, followed until they part
+    beyond ``separation`` (an event) or one is lost (censored). Returns one array per
+    start frame with pairs, rows ``(fall in d, event, start time)``."""
+    x0, x1, z0, z1 = region
+    rows = []
+    for k in first:
+        ok = np.isfinite(x[:, k]) & np.isfinite(z[:, k])
+        idx = np.nonzero(ok)[0]
+        pts = np.column_stack([x[idx, k], z[idx, k]])
+        ij = cKDTree(pts).query_pairs(contact, output_type="ndarray")
+        if ij.size == 0:
+            continue
+        a, b = idx[ij[:, 0]], idx[ij[:, 1]]
+        zm0 = 0.5 * (z[a, k] + z[b, k])
+        xm0 = 0.5 * (x[a, k] + x[b, k])
+        keep = (xm0 >= x0) & (xm0 <= x1) & (zm0 >= z0) & (zm0 <= z1)
+        a, b, zm0 = a[keep], b[keep], zm0[keep]
+        sep = np.hypot(x[a, k:] - x[b, k:], z[a, k:] - z[b, k:])
+        fall = np.fmax.accumulate(np.nan_to_num(zm0[:, None] - 0.5 * (z[a, k:] + z[b, k:]),
+                                                nan=-np.inf), axis=1)
+        broken = sep >= separation
+        lost = ~np.isfinite(sep)
+        end_b = np.where(broken.any(axis=1), broken.argmax(axis=1), sep.shape[1])
+        end_l = np.where(lost.any(axis=1), lost.argmax(axis=1), sep.shape[1])
+        event = end_b < end_l
+        last = np.where(event, end_b, np.maximum(end_l - 1, 0))
+        f_at = fall[np.arange(a.size), np.minimum(last, sep.shape[1] - 1)]
+        rows.append(np.column_stack([np.maximum(f_at, 0.0), event, np.full(a.size, t[k])]))
+    return rows
