@@ -36,7 +36,7 @@ import threading
 from collections.abc import Iterable
 from pathlib import Path
 
-from .._figures import FIGURE_FORMATS   # the figure writer's table of extensions
+from .._figures import FIGURE_FORMATS  # noqa: F401 - the figure writer's extensions
 
 
 class Terminated(KeyboardInterrupt):

@@ -39,10 +39,11 @@ import numpy as np
 from ..geometry import derivative, masked_derivative
 from ..grid import Grid
 from ..parameters import Spots, drift_weight
-from ._void_forms import (STAGGERED, FORMS, point_void_density, bridge_moments, printed_moments,
+from ._void_forms import (  # noqa: F401 - the closed forms, re-exported
+                          STAGGERED, FORMS, point_void_density, bridge_moments, printed_moments,
                           geometric_propagator, printed_propagator, pcp_rhs, printed_eq_pcp_rhs,
                           march_propagator, lattice_b, lattice_void_density, lattice_propagator,
-                          lattice_void_montecarlo)  # noqa: F401
+                          lattice_void_montecarlo)
 
 
 # ---------------------------------------------------------------------------------------
