@@ -53,7 +53,7 @@ _ALIASES = {
     "cli": "app.cli",
     "sweep": "app.sweep",
     "comparison": "analysis.comparison",
-    "layers": "analysis.layers",
+    "layers": "app.layers",
     "mcstats": "montecarlo.mcstats",
 }
 #: Subpackages and top-level modules, imported on first use.

@@ -30,13 +30,13 @@ from functools import cached_property
 
 import numpy as np
 
-from .geometry import (AXISYMMETRIC_DIFFUSIVITY_KEYS, AXISYMMETRIC_DRIFT_KEYS,
-                       DIFFUSIVITY_KEYS, DRIFT_KEYS, Geometry, derivative, geometry_of)
+from .geometry import (AXISYMMETRIC_DIFFUSIVITY_KEYS, AXISYMMETRIC_DRIFT_KEYS, COORDINATES,
+                       DIFFUSIVITY_KEYS, DRIFT_KEYS, Geometry, check_shape, derivative,
+                       geometry_of)
 
 WALLS = ("reflecting", "open")
-#: Coordinate systems: ``"cartesian"`` (2D ``(x, z)`` or 3D ``(x, y, z)``) or
-#: ``"axisymmetric"`` (``(r, z)``, a cylindrical silo, dims = 2).
-COORDINATES = ("cartesian", "axisymmetric")
+#: Coordinate systems (owned by :mod:`spotpde.geometry`): ``"cartesian"`` (2D ``(x, z)``
+#: or 3D ``(x, y, z)``) or ``"axisymmetric"`` (``(r, z)``, a cylindrical silo, dims = 2).
 
 #: Field-name tables (docs/interface.md), owned by :mod:`spotpde.geometry`:
 #: ``DRIFT_KEYS[dims]`` / ``DIFFUSIVITY_KEYS[dims]`` in result order, and the cylindrical
@@ -123,22 +123,9 @@ class Grid:
             raise ValueError(f"dims must be 2 or 3, got {self.dims!r}")
         if self.walls not in WALLS:
             raise ValueError(f"walls must be one of {WALLS}, got {self.walls!r}")
-        if self.coordinates not in COORDINATES:
-            raise ValueError(f"coordinates must be one of {COORDINATES}, got {self.coordinates!r}")
-        if self.coordinates == "axisymmetric":
-            if self.dims != 2:
-                raise ValueError(f"dims: axisymmetric coordinates have dims = 2 (r, z), got {self.dims!r}")
-            if float(self.x_range[0]) != 0.0:
-                raise ValueError(f"x range: axisymmetric coordinates need x = (0, a) (the axis "
-                                 f"at r = 0), got {tuple(self.x_range)!r}")
-        if self.hopper is not None:
-            if not isinstance(self.hopper, Hopper):
-                raise TypeError(f"hopper must be a Hopper or None, got {type(self.hopper).__name__}")
-            if self.dims != 2:
-                raise ValueError("hopper: hoppers exist on 2D and axisymmetric grids only")
-            if self.coordinates == "axisymmetric" and self.hopper.centre != 0.0:
-                raise ValueError(f"hopper: an axisymmetric hopper is centred on the axis, "
-                                 f"got centre {self.hopper.centre!r}")
+        if self.hopper is not None and not isinstance(self.hopper, Hopper):
+            raise TypeError(f"hopper must be a Hopper or None, got {type(self.hopper).__name__}")
+        check_shape(self.dims, self.x_range, self.coordinates, self.hopper)
         h = float(self.spacing)
         if not (h > 0 and np.isfinite(h)):
             raise ValueError(f"spacing must be a finite number > 0, got {self.spacing!r}")
@@ -188,7 +175,7 @@ class Grid:
     @property
     def axisymmetric(self) -> bool:
         """True for ``coordinates = "axisymmetric"`` (array order ``(z, r)``)."""
-        return self.coordinates == "axisymmetric"
+        return self.geometry.curved
 
     @cached_property
     def geometry(self) -> Geometry:
@@ -302,14 +289,7 @@ class Grid:
     def to_pde(self):
         """The matching ``pde.CartesianGrid`` (axes ordered x, [y,] z as py-pde expects;
         axisymmetric grids: ``pde.CylindricalSymGrid``, axes r, z)."""
-        import pde
-
-        if self.axisymmetric:
-            return pde.CylindricalSymGrid(self.x_range[1], self.z_range, (self.nx, self.nz))
-
-        bounds = [self.x_range] + ([self.y_range] if self.dims == 3 else []) + [self.z_range]
-        shape = [self.nx] + ([self.ny] if self.dims == 3 else []) + [self.nz]
-        return pde.CartesianGrid(bounds, shape)
+        return self.geometry.to_pde()
 
     def to_pde_data(self, a: np.ndarray) -> np.ndarray:
         """Reorder a spotpde array ``(z, [y,] x)`` into py-pde order ``(x, [y,] z)``."""

@@ -25,6 +25,13 @@ TRACER_MODELS = ("spot", "void")
 #: ``(lo, hi)``: a rule lam (``kernel.rule``, ``spotpde compare --rules``) lies in
 #: ``(lo, hi]``, from just after the start of a spot step to its end point.
 RULE_RANGE = (0, 1)
+#: Particle diffusivities: ``"passage"`` (the steps of one spot passing a particle, the
+#: discrete model's own) or ``"mean-field"`` (``D_p = w^2 rho_s D_s``, the paper's eq. Dp).
+#: The one table (``kernel.diffusivity``, the ``diffusivity`` arguments of fields, pair).
+DIFFUSIVITIES = ("passage", "mean-field")
+#: ``[lo, hi]``: a rule lam the library functions accept (``rule`` arguments); a case's
+#: ``kernel.rule`` lies in :data:`RULE_RANGE`, which leaves out the step's start.
+RULE_LIMITS = (0.0, 1.0)
 #: ``(lo, hi)``: a uniform kernel's influence w (``kernel.height``,
 #: ``spotpde.kernels.Uniform(height=)``) lies in ``[lo, hi]``: a spot moves a particle by
 #: at most its own step, and by enough that ``w**2`` (the diffusivity's factor) stays a
@@ -34,6 +41,38 @@ HEIGHT_RANGE = (1e-12, 1.0)
 #: ``HEIGHT_RANGE[1] * (1 + VOLUME_ROUNDING)`` (a volume written to four digits), taken as
 #: ``w = 1``.
 VOLUME_ROUNDING = 1e-3
+
+
+def check_diffusivity(diffusivity, name: str = "diffusivity") -> str:
+    """``diffusivity`` if it is one of :data:`DIFFUSIVITIES`, else ValueError naming
+    ``name`` (the caller's argument)."""
+    if diffusivity not in DIFFUSIVITIES:
+        raise ValueError(f"{name}: must be one of {list(DIFFUSIVITIES)}, got {diffusivity!r}")
+    return diffusivity
+
+
+def check_rule(rule, name: str = "rule") -> float:
+    """The rule lam as a float in :data:`RULE_LIMITS` (0.5 midpoint, 1 end point of a
+    spot's step), else ValueError naming ``name``."""
+    try:
+        lam = float(rule)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: must be a number (0.5 midpoint, 1 end point), got {rule!r}")
+    if not np.isfinite(lam) or not RULE_LIMITS[0] <= lam <= RULE_LIMITS[1]:
+        raise ValueError(f"{name}: must lie in [0, 1] (0.5 midpoint, 1 end point), got {rule!r}")
+    return lam
+
+
+def drift_weight(lam: float) -> float:
+    """``2 lam``: the weight of the rule's term in the particle drift,
+    ``u_p = -w * (rho_s u_s - 2 lam div(D_s rho_s))`` (dimensionless)."""
+    return 2.0 * lam
+
+
+def wall_weight(lam: float) -> float:
+    """``1 - 2 lam``: what the rule leaves of a spot's step next to a wall (the wall
+    layer's and the metric's weight; 0 at the midpoint rule), dimensionless."""
+    return 1.0 - drift_weight(lam)
 
 
 @dataclass(frozen=True)
@@ -82,6 +121,8 @@ class Spots:
     rho_max: float | None = None
     flux: str = "greenshields"
     diffusion_scaling: str = "fixed"
+    #: interacting spots: frames saved on ``[0, t_end]`` (``spots.frames``)
+    frames: int = 101
 
     @property
     def D_perp(self) -> Coefficient:
@@ -142,3 +183,42 @@ class Tracer:
 
 def _is_array(*values) -> bool:
     return any(np.ndim(v) > 0 for v in values)
+
+
+@dataclass(frozen=True)
+class PairParams:
+    """Cage breaking of a pair at a point of the flow (``[pair]``, :mod:`spotpde.pair`).
+
+    Args:
+        x, z: the point of the flow where the pair falls, in d.
+        contact: the hard-core distance in d.
+        separation: the cage's radius in d (> ``contact``).
+        start: the initial separation ``(x, z)`` in d, ``"contact"`` (uniform over the
+            contact directions) or ``None`` (the solver's default).
+        spacing: the solver's cell size in d (``None``: ``contact / 16``).
+        frames: frames of the separation's density.
+    """
+
+    x: float
+    z: float
+    contact: float = 1.0
+    separation: float = 2.0
+    start: tuple[float, float] | str | None = None
+    spacing: float | None = None
+    frames: int = 8
+
+
+@dataclass(frozen=True)
+class ComparisonSettings:
+    """What a case says about its flow beyond the typed orifice and spots that the
+    comparison with the Kinematic Model must know (:func:`spotpde.comparison.case_problems`
+    names these keys when it refuses).
+
+    Args:
+        rate: where ``Q0`` comes from: ``"constant"``, ``"table"`` (``orifice.rate`` a
+            table of times and values) or ``"noise"`` (``orifice.noise``).
+        profiles: the spot keys given as profiles instead of numbers (``"b"``, ``"drift"``).
+    """
+
+    rate: str = "constant"
+    profiles: tuple[str, ...] = ()

@@ -27,7 +27,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 import spotpde  # noqa: E402
-from spotpde.analysis import layers  # noqa: E402
+from spotpde.app import layers  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 OUT = Path(__file__).resolve().parent / "layered_silo.png"

@@ -1,5 +1,6 @@
 """Analysis of results: ``comparison`` (the spot model's mean flow against the
-Kinematic Model, rule by rule), ``layers`` (diagnostics of layered-silo runs) and
+Kinematic Model, rule by rule), ``layers`` (measures of layered-silo results;
+``spotpde.layers``, i.e. ``spotpde.app.layers``, adds the runs they need) and
 ``packing`` (packing fraction, g(r), overlaps and number variance of particle
 positions; docs/packing.md)."""
 

@@ -186,18 +186,16 @@ def case_problems(case, rules: Sequence[float] = ()) -> list[str]:
     if bad:
         problems.append(f"--rules: each rule must be in ({lo:g}, {hi:g}] like kernel.rule, "
                         f"got {', '.join(f'{r:g}' for r in bad)}")
-    o, s = case.data["orifice"], case.data["spots"]
-    if s.get("rho_max") is not None:
+    if case.spots.rho_max is not None:
         problems.append("spots.rho_max: interacting spots have no steady state to compare "
                         "with the steady Kinematic Model; remove spots.rho_max (and "
                         'spots.mode = "transient") to compare spots that do not interact')
-    if isinstance(o["rate"], Mapping) or o.get("noise") is not None:
-        key = "orifice.noise" if o.get("noise") is not None else "orifice.rate"
+    if case.comparison.rate != "constant":
+        key = "orifice.noise" if case.comparison.rate == "noise" else "orifice.rate"
         problems.append(f"{key}: the comparison needs a constant rate Q0 (the steady flow)")
-    for key in ("b", "drift"):
-        if isinstance(s[key], Mapping):
-            problems.append(f"spots.{key}: the Kinematic Model has one b and one speed; "
-                            "give a number, not a profile")
+    for key in case.comparison.profiles:
+        problems.append(f"spots.{key}: the Kinematic Model has one b and one speed; "
+                        "give a number, not a profile")
     if problems:
         return problems
     kernel = case.kernel
@@ -425,13 +423,13 @@ def plot_comparison(comparisons: Mapping[float, KinematicComparison], path=None)
     Args:
         comparisons: ``{lam: KinematicComparison}`` (e.g. from :func:`compare_rules`).
         path: where to save the figure (the format of its extension, written
-            atomically: :func:`spotpde.app._figures.save_figure`); ``None`` returns the
+            atomically: :func:`spotpde._figures.save_figure`); ``None`` returns the
             figure unsaved.
 
     Returns:
         The matplotlib figure.
     """
-    from ..app._figures import figure_format, prepare_matplotlib, save_figure
+    from .._figures import figure_format, prepare_matplotlib, save_figure
 
     if path is not None:
         figure_format(path)          # an unsupported extension: refused before drawing

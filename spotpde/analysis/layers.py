@@ -25,7 +25,7 @@ the case's time unit.
   alike, so the advective lengthening of the edges does not count as blur. It is
   meaningful while the bands still reach 0 and 1 (contrast near 1); once bands merge
   the total variation drops and ``sigma`` overstates the blur.
-* :func:`numerical_blur`: the measured numerical diffusion of a run. The same case is
+* :func:`spotpde.layers.numerical_blur`: the measured numerical diffusion of a run. The same case is
   rerun with the physical diffusivity switched off (``D_p = 0``; same drift, grid,
   limiter, CFL number), so any broadening of its edges is the scheme's. The physical
   broadening is the difference ``var_phys = sigma_run**2 - sigma_num**2`` (edge
@@ -49,7 +49,6 @@ Two numbers come out, because a sharp edge on a grid is blurred in two ways:
 
 from __future__ import annotations
 
-import copy
 from typing import Mapping
 
 import numpy as np
@@ -186,89 +185,24 @@ def predicted_variance(ds: xr.Dataset, *, x_max: float = X_MAX,
     return 2.0 * np.concatenate([[0.0], np.cumsum(steps)])
 
 
-def refined(case, factor: int = 2):
-    """The same case on a grid ``factor`` times finer (``domain.spacing / factor``)."""
-    from ..app.cases import load_case
-
-    case = _as_case(case)
-    data = copy.deepcopy(case.data)
-    data["domain"]["spacing"] = case.data["domain"]["spacing"] / factor
-    return load_case(data)
-
-
-def with_limiter(case, limiter: str):
-    """The same case with another ``tracer.limiter``."""
-    from ..app.cases import load_case
-
-    case = _as_case(case)
-    data = copy.deepcopy(case.data)
-    data["tracer"]["limiter"] = limiter
-    return load_case(data)
-
-
-def _as_case(case):
-    from ..app.cases import Case, load_case
-
-    return case if isinstance(case, Case) else load_case(case)
-
-
 def _slope(t: np.ndarray, v: np.ndarray) -> float:
     if t.size < 2:
         return float("nan")
     return float(np.polyfit(t, v, 1)[0])
 
 
-def run_without_diffusion(case, ds: xr.Dataset | None = None) -> tuple[xr.Dataset, xr.DataArray]:
-    """Run a layered case, and rerun its tracer with ``D_p = 0``.
-
-    The ``D_p = 0`` run takes the drift ``u_x``, ``u_z`` of the physical run's Dataset
-    (the very arrays, so the same flow), the same grid, initial density, frames and
-    ``tracer.solve`` options (limiter, CFL number, diffusion mode) and sets ``D_xx``,
-    ``D_xz``, ``D_zz`` to zero. (Without diffusion the time step is the advective limit;
-    for the spot model that is the step of the physical run too.)
+def measure_blur(case, ds: xr.Dataset, P_num: xr.DataArray, *, x_max: float = X_MAX,
+                 z_range: tuple[float, float] = Z_RANGE) -> dict:
+    """Measured numerical diffusion of a layered run from its two results (see the
+    module docstring): the physical run ``ds`` and its ``D_p = 0`` frames ``P_num``.
+    :func:`spotpde.layers.numerical_blur` runs what is missing and calls this.
 
     Args:
-        case: a :class:`spotpde.cases.Case`, a case path or mapping (2D, layered tracer).
-        ds: the physical run's Dataset, if already computed (else it is run).
-
-    Returns:
-        ``(ds, P_num)``: the physical result and the ``D_p = 0`` frames (DataArray on
-        ``(t, z, x)``, same coordinates as ``ds.P``).
-    """
-    from ..app import pipeline
-    from .. import tracer
-
-    case = _as_case(case)
-    if case.tracer is None or case.tracer.start.kind != "layers":
-        raise ValueError("numerical_blur needs a case with a layered tracer start")
-    if case.grid.dims != 2:
-        raise ValueError("numerical_blur is implemented for 2D cases")
-    if ds is None:
-        ds = pipeline.run(case)
-    fields = {"u_x": np.asarray(ds.u_x, dtype=float), "u_z": np.asarray(ds.u_z, dtype=float),
-              "D_xx": 0.0, "D_xz": 0.0, "D_zz": 0.0}
-    P0 = pipeline.initial_density(case.grid, case.tracer.start)
-    res = tracer.solve(case.grid, fields, P0, case.tracer.t_end, case.tracer.frames,
-                       **case.tracer_options)
-    P_num = xr.DataArray(res.P, dims=ds.P.dims, coords=ds.P.coords, name="P",
-                         attrs=dict(ds.P.attrs))
-    return ds, P_num
-
-
-def numerical_blur(case, ds: xr.Dataset | None = None, *, x_max: float = X_MAX,
-                   z_range: tuple[float, float] = Z_RANGE,
-                   P_num: xr.DataArray | None = None) -> dict:
-    """Measured numerical diffusion of a layered run (see the module docstring).
-
-    Runs the case (unless ``ds`` is given) and the same case with ``D_p = 0``
-    (:func:`run_without_diffusion`, unless ``P_num`` is given), and measures the edge
-    variance ``sigma**2`` (:func:`interface_width`) of both in the region per frame.
-
-    Args:
-        case: a :class:`spotpde.cases.Case`, path or mapping (2D, layered tracer).
-        ds: the physical run's Dataset, if already computed.
+        case: the :class:`spotpde.cases.Case` both ran (its grid spacing, tracer limiter
+            and model label the result).
+        ds: the physical run's Dataset.
+        P_num: the ``D_p = 0`` frames (DataArray on ``ds.P``'s dims).
         x_max, z_range: the measuring region (d).
-        P_num: the ``D_p = 0`` frames, if already computed.
 
     Returns:
         dict with
@@ -288,11 +222,6 @@ def numerical_blur(case, ds: xr.Dataset | None = None, *, x_max: float = X_MAX,
         * ``spacing``, ``limiter``, ``model``; ``P_num`` (the ``D_p = 0`` frames) and
           ``ds`` (the physical result), for plotting.
     """
-    case = _as_case(case)
-    if P_num is None:
-        ds, P_num = run_without_diffusion(case, ds)
-    elif ds is None:
-        raise ValueError("P_num given without ds")
     region = {"x_max": x_max, "z_range": z_range}
     s_run = interface_width(ds, **region)
     s_num = interface_width(ds, P=P_num, **region)
@@ -325,7 +254,7 @@ def numerical_blur(case, ds: xr.Dataset | None = None, *, x_max: float = X_MAX,
 
 
 def summary(blur: Mapping) -> str:
-    """One-line text of a :func:`numerical_blur` result (for logs and figure titles)."""
+    """One-line text of a :func:`spotpde.layers.numerical_blur` result (for logs and figure titles)."""
     return (f"{blur['model']} h={blur['spacing']:g} d {blur['limiter']}: "
             f"var_run={blur['var_run'][-1]:.4g}, var_num={blur['var_num'][-1]:.4g}, "
             f"var_phys={blur['var_phys'][-1]:.4g}, var_pred={blur['var_pred'][-1]:.4g} d^2; "
@@ -381,7 +310,7 @@ def strained_numerical_diffusion(blur: Mapping, *, x_max: float = X_MAX,
     An edge of variance ``s2`` in a flow that stretches it at the normal rate ``e``
     obeys ``d s2/dt = 2 D_nn + 2 e s2``. Strain alone makes the ``D_p = 0`` rerun's edges
     of a converging silo *thinner* in time, so the bare growth of ``var_num`` (the
-    ``growth_ratio`` of :func:`numerical_blur`) comes out negative and says nothing
+    ``growth_ratio`` of :func:`spotpde.layers.numerical_blur`) comes out negative and says nothing
     about the scheme. Solving the width equation for the diffusivity instead,
 
         D_num(t) = (1/2) d var_num/dt - e(t) var_num(t),
@@ -396,7 +325,7 @@ def strained_numerical_diffusion(blur: Mapping, *, x_max: float = X_MAX,
     known: ``D_nn = (h/2) (|u_x| n_x**2 + |u_z| n_z**2)``, returned as ``D_upwind``.
 
     Args:
-        blur: a :func:`numerical_blur` result (uses ``t``, ``ds``, ``P_num``,
+        blur: a :func:`spotpde.layers.numerical_blur` result (uses ``t``, ``ds``, ``P_num``,
             ``var_num``, ``var_pred``, ``spacing``).
         x_max, z_range: the region (as for ``blur``).
 

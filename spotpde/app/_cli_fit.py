@@ -171,10 +171,10 @@ def _client(workers):
 
 
 def _save_figure(fig, path: Path) -> None:
-    """Write a pyplot figure atomically (:func:`._figures.save_figure`), then close it."""
+    """Write a pyplot figure atomically (:func:`spotpde._figures.save_figure`), then close it."""
     import matplotlib.pyplot as plt
 
-    from ._figures import save_figure
+    from .._figures import save_figure
 
     try:
         save_figure(fig, path)

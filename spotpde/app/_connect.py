@@ -5,8 +5,11 @@ banner is not a Dask scheduler). Public through :mod:`spotpde.app.sweep`.
 
 from __future__ import annotations
 
+import asyncio
 import math
 import os
+import socket
+import threading
 
 from ..errors import CaseError
 
@@ -46,9 +49,6 @@ def _handshake(address: str, timeout: float) -> None:
         TimeoutError: no handshake within ``timeout`` (a port that accepts and is silent).
         OSError: the connection failed or was closed.
     """
-    import asyncio
-    import threading
-
     from distributed.comm import connect as comm_connect
 
     async def probe():
@@ -87,8 +87,6 @@ def connect(address: str, timeout: float | None = None):
             listening, no answer within ``timeout``, a service that is not a Dask
             scheduler (it sends a banner before being asked), or a failed handshake.
     """
-    import socket
-
     from distributed import Client
 
     if timeout is None:

@@ -44,13 +44,10 @@ def check_consistency(v: _Validator, data: dict) -> None:
         v: the validator whose ``bad`` collects the problems.
         data: the mapping returned by ``v.tables`` (every table passed its own checks).
     """
-    d, o, s, k = data["domain"], data["orifice"], data["spots"], data["kernel"]
-    dims, h = d["dims"], d["spacing"]
-    x0, x1 = d["x"]
-    z0, z1 = d["z"]
-    y0, y1 = _check_depth(v, d)
-    ywhere = "domain.y" if "y" in d else "domain.x"
-    if z0 != 0.0:
+    d = data["domain"]
+    h = d["spacing"]
+    y_extent = _check_depth(v, d)
+    if d["z"][0] != 0.0:
         v.bad("domain.z", "must start at 0 (the orifice is the floor z = 0)", d["z"])
     for name, (a, b) in (("x", d["x"]), ("z", d["z"])):
         extent = f"the domain.{name} extent {_show(b - a)}"
@@ -58,7 +55,20 @@ def check_consistency(v: _Validator, data: dict) -> None:
             "many": f"is far too small for {extent} ({{n:.3g}} cells)",
             "few": f"must give at least 4 cells across {extent}",
             "partial": f"must divide {extent} into whole cells"})
-    # orifice on the floor
+    _check_orifice(v, d, data["orifice"], y_extent)
+    _check_spots(v, data["orifice"], data["spots"])
+    _check_kernel_keys(v, d, data["kernel"])
+    _check_tracer(v, d, data["spots"], data.get("tracer"), y_extent)
+    _check_geometry(v, data)
+    _check_pair(v, data, data.get("pair"))
+
+
+def _check_orifice(v: _Validator, d: dict, o: dict, y_extent) -> None:
+    """The orifice on the floor (``orifice.x``, ``.y``, ``.shape``, ``.width``)."""
+    dims, h = d["dims"], d["spacing"]
+    x0, x1 = d["x"]
+    y0, y1 = y_extent
+    ywhere = "domain.y" if "y" in d else "domain.x"
     half = 0.5 * o["width"] if o["profile"] == "uniform" else 0.0
     # axisymmetric: the orifice is the disk r <= width/2 around the axis r = x0 = 0
     below = 0.0 if d.get("coordinates") == "axisymmetric" else half
@@ -86,7 +96,10 @@ def check_consistency(v: _Validator, data: dict) -> None:
     if 0.0 < o["width"] < h and o["profile"] == "uniform":
         v.bad("orifice.width", f"must be 0 (a point source) or at least one cell "
               f"(domain.spacing = {_show(h)})", o["width"])
-    # spots
+
+
+def _check_spots(v: _Validator, o: dict, s: dict) -> None:
+    """The spots' mode against the rate, the end time and the interacting-spot keys."""
     if isinstance(o["rate"], dict) and s["mode"] != "transient":
         v.bad("orifice.rate", 'a table of rates needs spots.mode = "transient"; '
               "give a number for a steady run", o["rate"])
@@ -105,7 +118,11 @@ def check_consistency(v: _Validator, data: dict) -> None:
     if s["mode"] == "steady" and s["t_end"] != 0:
         v.bad("spots.t_end", 'is only used when spots.mode = "transient"; '
               'set it to 0 or remove it', s["t_end"])
-    # kernel
+
+
+def _check_kernel_keys(v: _Validator, d: dict, k: dict) -> None:
+    """A uniform kernel's volume or height against its influence ``w <= 1``."""
+    dims = d["dims"]
     if k["shape"] == "uniform" and "volume" in k:
         w = k["volume"] / _ellipsoid_measure(k["size"], k["aspect"], kernel_dims(d))
         if w > HEIGHT_RANGE[1] * (1 + VOLUME_ROUNDING):   # w = 1 (the void model's spot),
@@ -119,8 +136,16 @@ def check_consistency(v: _Validator, data: dict) -> None:
         if k["shape"] != "uniform":
             v.bad("kernel.height", 'is only for shape = "uniform" (the influence w '
                   'inside the disk/sphere); give kernel.volume instead', k["height"])
-    # tracer
-    t = data.get("tracer")
+
+
+def _check_tracer(v: _Validator, d: dict, s: dict, t: dict | None, y_extent) -> None:
+    """The tracer's end time, stepping, snapshots, start and layers against the domain
+    and the spots."""
+    dims, h = d["dims"], d["spacing"]
+    x0, x1 = d["x"]
+    z0, z1 = d["z"]
+    y0, y1 = y_extent
+    ywhere = "domain.y" if "y" in d else "domain.x"
     if t is not None and t.get("t_end") == math.inf and s["mode"] == "transient":
         v.bad("tracer.t_end", 'inf (the steady propagator) needs spots.mode = '
               '"steady"; give a finite time for a tracer in a starting flow', math.inf)
@@ -165,9 +190,13 @@ def check_consistency(v: _Validator, data: dict) -> None:
             v.bad("tracer.layers.spacing", f"must be < 2 * the domain height "
                   f"{_show(z1 - z0)} to leave a band and a gap in the silo", sp)
 
-    _check_geometry(v, data)
 
-    p = data.get("pair")
+def _check_pair(v: _Validator, data: dict, p: dict | None) -> None:
+    """The ``[pair]`` point inside a 2D domain, and in the material."""
+    d = data["domain"]
+    dims = d["dims"]
+    x0, x1 = d["x"]
+    z0, z1 = d["z"]
     if p is not None:
         if dims != 2:
             v.bad("pair", "needs domain.dims = 2 (the pair solver is 2D)", dims)

@@ -35,7 +35,12 @@ import signal
 import sys
 import threading
 import time
+from multiprocessing import resource_tracker, util
 from pathlib import Path
+
+import psutil
+
+from ._outputs import Terminated
 
 #: Loggers whose messages about a cluster being torn down say nothing a user needs.
 QUIET_LOGGERS = ("distributed", "tornado", "asyncio")
@@ -50,8 +55,6 @@ MEMBER_TEMPORARIES = ".member-*.tmp"
 
 def _children() -> dict[int, float]:
     """This process's descendants: pid -> creation time (a pid may be reused)."""
-    import psutil
-
     out = {}
     for child in psutil.Process().children(recursive=True):
         try:
@@ -65,8 +68,6 @@ def _resource_tracker_pid() -> int | None:
     """multiprocessing's resource tracker: shared with other users, never killed (it
     removes the cluster's named semaphores when this process ends)."""
     try:
-        from multiprocessing import resource_tracker
-
         return resource_tracker._resource_tracker._pid
     except (ImportError, AttributeError):
         return None
@@ -82,8 +83,6 @@ def _start_resource_tracker() -> None:
     semaphores that it then removes; a sweep that leaves with ``os._exit`` while a
     thread of distributed is closing a queue would otherwise end with two such lines.
     """
-    from multiprocessing import resource_tracker
-
     tracker = resource_tracker._resource_tracker
     if getattr(tracker, "_fd", None) is not None:   # already running: keep it
         resource_tracker.ensure_running()
@@ -95,8 +94,6 @@ def _start_resource_tracker() -> None:
 def kill_and_wait(pids, timeout: float = ABORT_TIMEOUT) -> None:
     """SIGKILL ``pids`` and wait until each is dead or a zombie (not reaped here: the
     thread of multiprocessing that watches the process reaps it)."""
-    import psutil
-
     procs = []
     for pid in pids:
         try:
@@ -238,8 +235,6 @@ def before_exit() -> None:
     would otherwise report as leaked (a warning on standard error) once this process is
     gone. Not for a process that goes on: they also stop every ``multiprocessing.Pool``."""
     try:
-        from multiprocessing import util
-
         util._run_finalizers(0)
     except Exception:  # noqa: BLE001 - best effort on the way out
         pass
@@ -285,8 +280,6 @@ class deferred_signals:
     def __exit__(self, *exc):
         _restore_signals(self.previous)
         if self.received:
-            from ._outputs import Terminated
-
             first = self.received[0]
             raise KeyboardInterrupt() if first == signal.SIGINT else Terminated(first)
         return False
@@ -297,7 +290,6 @@ def import_libraries(dask: bool = True) -> None:
     psutil for the cluster, netCDF4 and xarray's backends (found through entry points on
     first use) for the member files."""
     import netCDF4  # noqa: F401
-    import psutil  # noqa: F401
     import xarray
 
     xarray.backends.list_engines()

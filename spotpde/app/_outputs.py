@@ -36,9 +36,7 @@ import threading
 from collections.abc import Iterable
 from pathlib import Path
 
-#: Extensions of the figures matplotlib's Agg, PDF, PS and SVG backends write.
-FIGURE_FORMATS = ("png", "pdf", "svg", "svgz", "eps", "ps", "jpg", "jpeg", "tif", "tiff",
-                  "webp")
+from .._figures import FIGURE_FORMATS  # noqa: F401 - the figure writer's extensions
 
 
 class Terminated(KeyboardInterrupt):

@@ -20,6 +20,7 @@ import math
 from collections.abc import Mapping
 
 import numpy as np
+import psutil
 
 from ._schema import _ellipsoid_measure, kernel_dims
 
@@ -43,8 +44,6 @@ def available_memory() -> int:
     Returns:
         Available memory in bytes (4 GiB if the system does not say).
     """
-    import psutil
-
     try:
         return int(psutil.virtual_memory().available)
     except Exception:  # noqa: BLE001 - a platform psutil cannot read

@@ -26,7 +26,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from ..grid import COORDINATES, WALLS
-from ..parameters import (HEIGHT_RANGE, ORIFICE_SHAPES, PROFILES, RULE_RANGE, SPOT_MODES,
+from ..parameters import (DIFFUSIVITIES, HEIGHT_RANGE, ORIFICE_SHAPES, PROFILES, RULE_RANGE, SPOT_MODES,
                           TRACER_MODELS)
 from ._nesting import MAX_NESTING, plain as _plain  # noqa: F401 - re-exported
 
@@ -40,7 +40,6 @@ DIFFUSION_MODES = ("auto", "explicit", "implicit")
 #: limit, or the long-run schemes of docs/long_runs.md.
 STEPPING_MODES = ("explicit", "multirate", "imex", "implicit", "auto")
 #: ``kernel.diffusivity``: the discrete model's passage diffusivity, or the paper's eq. Dp.
-DIFFUSIVITIES = ("passage", "mean-field")
 
 #: Defaults of every key, table by table (docs/interface.md). ``None`` marks an optional key
 #: without a default. The ``tracer`` table itself is optional.

@@ -22,9 +22,16 @@ kernel itself: the child writes nothing but numba's cache.
 
 from __future__ import annotations
 
+import hashlib
 import os
 import subprocess
 import sys
+from pathlib import Path
+
+import numpy as np
+
+from .. import _cache
+from ..grid import Grid
 
 
 class Warmup:
@@ -67,11 +74,6 @@ def needed() -> bool:
     it in the cache subdirectory numba uses for this source directory (numba names it
     ``tracer_<sha1 of the directory>``), or only indexes older than the source file (an
     upgrade: numba would recompile). A file test, no import of numba."""
-    import hashlib
-    from pathlib import Path
-
-    from .. import _cache
-
     root = _cache.NUMBA_DIR
     if root is None:                # no writable cache: a child's work would be lost
         return False
@@ -87,9 +89,6 @@ def needed() -> bool:
 
 
 def _main(limiter: str, threads: int) -> None:
-    import numpy as np
-
-    from ..grid import Grid
     from ..tracer import solve
 
     grid = Grid(2, (-1.0, 1.0), (0.0, 2.0), 0.25)

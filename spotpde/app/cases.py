@@ -23,14 +23,17 @@ from __future__ import annotations
 
 import os
 import tomllib
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
+import tomli_w
 
 from ..errors import CaseError
 from ..grid import Grid, Hopper
-from ..parameters import Orifice, Spots, Tracer, TracerStart
+from ..parameters import (ComparisonSettings, Orifice, PairParams, Spots, Tracer,
+                          TracerStart)
 from ._consistency import check_consistency
 from ._nesting import MAX_NESTING, text_problem
 from ._resources import (BASELINE_BYTES, MEMORY_FRACTION, auto_snapshots, available_memory,
@@ -64,6 +67,9 @@ class Case:
         orifice: :class:`spotpde.parameters.Orifice`.
         spots: :class:`spotpde.parameters.Spots`.
         tracer: :class:`spotpde.parameters.Tracer`, or ``None`` without a ``[tracer]`` table.
+        pair: :class:`spotpde.parameters.PairParams`, or ``None`` without a ``[pair]`` table.
+        comparison: :class:`spotpde.parameters.ComparisonSettings` (where the rate and
+            the spot profiles come from).
         rule: lam, where along a spot step its influence is evaluated (1 for the void model).
         tracer_options: keyword options of ``spotpde.tracer.solve`` (``limiter``, ``cfl``,
             ``diffusion``, ``stepping``, ``tol``, ``split``), empty without a tracer.
@@ -100,7 +106,18 @@ class Case:
                            b_par=_field(s["b_par"], self.grid), mode=s["mode"],
                            t_end=s["t_end"], rho_max=s.get("rho_max"),
                            flux=s.get("flux") or "greenshields",
-                           diffusion_scaling=s.get("diffusion_scaling") or "fixed")
+                           diffusion_scaling=s.get("diffusion_scaling") or "fixed",
+                           frames=s.get("frames") or 101)
+        p = data.get("pair")
+        start = None if p is None else p.get("start")
+        self.pair = None if p is None else PairParams(
+            x=p["x"], z=p["z"], contact=p["contact"], separation=p["separation"],
+            start=(start["x"], start["z"]) if isinstance(start, Mapping) else start,
+            spacing=p.get("spacing"), frames=p["frames"])
+        self.comparison = ComparisonSettings(
+            rate=("noise" if o.get("noise") is not None
+                  else "table" if isinstance(o["rate"], Mapping) else "constant"),
+            profiles=tuple(key for key in ("b", "drift") if isinstance(s[key], Mapping)))
         self.tracer = _tracer(data.get("tracer"), self.grid, self.orifice)
         t = data.get("tracer")
         self.tracer_options = ({} if t is None else
@@ -111,7 +128,7 @@ class Case:
         self.kernel_spec = {"shape": k["shape"], "size": k["size"], "volume": volume,
                             "aspect": k["aspect"],
                             # an axisymmetric silo is 3D: its spots have a 3D kernel
-                            "dims": 3 if self.grid.axisymmetric else d["dims"]}
+                            "dims": self.grid.geometry.kernel_dims}
         self._kernel = None
 
     # -- derived --------------------------------------------------------------------
@@ -342,8 +359,6 @@ def _check_kernel(case: Case) -> None:
 def _warn_wide_kernel(data: Mapping) -> None:
     """Warn when the kernel's size (R, sigma or decay length) spans more than the domain:
     every spot then moves the whole silo, and the fields are mostly the walls' images."""
-    import warnings
-
     d, k = data["domain"], data["kernel"]
     width, height = d["x"][1] - d["x"][0], d["z"][1] - d["z"][0]
     depth = d["y"][1] - d["y"][0] if "y" in d and d["dims"] == 3 else width
@@ -397,8 +412,6 @@ def dump_toml(data: Mapping) -> str:
     Returns:
         TOML text that :func:`tomllib.loads` reads back to an equal mapping.
     """
-    import tomli_w
-
     def drop_none(node):
         if isinstance(node, Mapping):
             return {k: drop_none(v) for k, v in node.items() if v is not None}

@@ -12,10 +12,14 @@ then renamed). Output paths are checked before any computing (:mod:`spotpde.app.
 from __future__ import annotations
 
 import argparse
+import importlib
 import os
 import sys
 import time
+import warnings
 from pathlib import Path
+
+from tqdm import tqdm
 
 from .._version import __version__
 from . import _cli_fit
@@ -55,8 +59,6 @@ class Progress:
             self.stage = stage
             self.last = -1
             if self.tty:
-                from tqdm import tqdm
-
                 self.bar = tqdm(total=100, desc=f"spotpde: {stage}", file=self.stream,
                                 unit="%", leave=True,
                                 bar_format="{desc} {percentage:3.0f}%|{bar}| [{elapsed}<{remaining}]")
@@ -92,10 +94,8 @@ def cmd_check(args) -> int:
     _check_outputs([("output.path", case.output_path, None)], inputs=[args.case])
     g = case.grid
     cells = " x ".join(str(n) for n in g.shape)
-    where = f"{g.dims}D" if not g.axisymmetric else "axisymmetric (z, r)"
-    if g.hopper is not None:
-        where += f", hopper {g.hopper.angle:g} degrees"
-    _say(f"spotpde: {args.case} is valid ({where}, {cells} cells, model {case.model})")
+    _say(f"spotpde: {args.case} is valid ({g.geometry.description}, {cells} cells, "
+         f"model {case.model})")
     _estimate(case, getattr(args, "allow_long", False))
     return EXIT_OK
 
@@ -126,8 +126,6 @@ def _run_libraries(case) -> None:
     netCDF4 and xarray's backends, found through entry points on first use), the spot
     density, field (with the FFT convolution: pyfftw) and kinematic solvers, and the
     tracer."""
-    import importlib
-
     from ._localdask import import_libraries
 
     import_libraries(dask=False)
@@ -142,7 +140,7 @@ def _run_libraries(case) -> None:
                  "spotpde.fields.convolution" if particle else None,   # pyfftw
                  "spotpde.tracer" if case.tracer is not None else None,
                  "spotpde.density.traffic" if case.spots.rho_max is not None else None,
-                 "spotpde.pair" if case.data.get("pair") is not None else None):
+                 "spotpde.pair" if case.pair is not None else None):
         if name is not None:
             importlib.import_module(name)
 
@@ -479,7 +477,7 @@ def _quick_exit(status: int) -> None:
     and extension state, which took about 1 s after a flagship run (0.2-0.3 s each for
     numba, pyfftw, dask, matplotlib; C code, no Python frames), a part of the first run's
     time (issue 16: under 15 s), and 0.3 s of the 4 s of CPU time of ``plot``. matplotlib
-    keeps its files in a lasting directory (:func:`._figures.prepare_matplotlib`), so
+    keeps its files in a lasting directory (:func:`spotpde._figures.prepare_matplotlib`), so
     the skipped clean-up of a temporary one leaves nothing behind."""
     for stream in (sys.stdout, sys.stderr):
         try:
@@ -491,8 +489,6 @@ def _quick_exit(status: int) -> None:
 
 def _dispatch(args) -> int:
     """Run the chosen command; errors become one line and an exit status."""
-    import warnings
-
     warnings.showwarning = _warning
     try:
         return args.func(args)

@@ -48,6 +48,7 @@ import math
 
 import numpy as np
 
+from .._roundoff import clip_roundoff
 from ..errors import CaseError
 
 #: Cell updates per second of one SSP-RK3 step, by reconstruction (one thread).
@@ -163,7 +164,6 @@ def case_estimate(case) -> dict | None:
     if not _estimated(case):
         return None
     from ..density import spot_density
-    from .._roundoff import clip_roundoff
     from .pipeline import case_fields
     rho = clip_roundoff(np.asarray(spot_density.solve(case.grid, case.orifice, case.spots),
                                    dtype=float))
@@ -210,7 +210,7 @@ def spot_density_runs(case) -> list[dict]:
     if s.rho_max is not None or t is None or t.t_end != s.t_end:
         ends.append(("spots.t_end", s.t_end))
     grid = case.grid
-    p = pad_cells(grid, s.b) if not grid.axisymmetric and grid.hopper is None else 0
+    p = pad_cells(grid, s.b) if grid.geometry.uniform_cells else 0
     cells = grid.size * math.prod((n + 2 * p) / n for n in grid.shape[1:])
     v = float(np.max(s.drift))
     h = grid.spacing

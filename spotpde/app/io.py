@@ -34,6 +34,7 @@ Coordinates carry ``axis`` (``X``, ``Y``, ``Z``, ``T``) and ``z`` ``positive = "
 from __future__ import annotations
 
 import contextlib
+import datetime
 import os
 import tempfile
 import threading
@@ -43,6 +44,7 @@ from typing import Mapping
 import numpy as np
 import xarray as xr
 
+from .._version import __version__
 from ..errors import WriteError
 from ._outputs import held_signals
 
@@ -109,10 +111,6 @@ def cf_attrs(case=None, *, history: bool = True) -> dict[str, str]:
         case: the :class:`spotpde.cases.Case` (its source file goes into ``history``).
         history: include ``history`` (it holds the time, so two runs differ in it).
     """
-    import datetime
-
-    from .._version import __version__
-
     now = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
     origin = getattr(case, "source", None)
     out = {

@@ -39,7 +39,7 @@ from .cases import Case, check_arguments, load_case
 from ..errors import CaseError, NumericalError
 from .._roundoff import clip_roundoff
 from .io import cf_attrs, FrameWriter, make_dataset, NETCDF_LOCK, write_netcdf
-from ._outputs import held_signals
+from ._outputs import held_signals, output_problem
 from ..parameters import TracerStart, in_bands
 
 #: The pipeline's stages, in order, as reported to ``progress``.
@@ -88,7 +88,6 @@ def run(case: Case | str, progress: Progress | None = None, *,
     if not isinstance(case, Case):
         case = load_case(case)
     if path is not None:   # before computing: a missing or read-only directory, ...
-        from ._outputs import output_problem
 
         problem = output_problem(path, inputs=[case.source] if case.source else ())
         if problem:
@@ -201,8 +200,7 @@ def _run(case: Case, progress: Progress | None, open_frames=None,
         v_kin = np.asarray(kinematic.speed(grid, orifice, b), dtype=float) * V1 * q0
     stage(1.0)
 
-    if grid.hopper is not None:      # nothing moves outside the hopper's walls
-        v_kin = np.where(grid.active, v_kin, 0.0)
+    v_kin = grid.geometry.restrict(v_kin)     # nothing moves outside a hopper's walls
     out = {"rho_s": rho_s, "v_kin": v_kin, **fields}
     times = None
     steady_attrs = {}
@@ -234,7 +232,7 @@ def _run(case: Case, progress: Progress | None, open_frames=None,
             out["P"] = res.P
     for name, arr in out.items():
         _check_finite(name, np.asarray(arr, dtype=float))
-    if grid.hopper is not None:     # cells outside the material are NaN in results
+    if grid.geometry.masked:     # cells outside the material are NaN in results
         out = {name: _mask_outside(grid, np.asarray(arr, dtype=float))
                for name, arr in out.items()}
 
@@ -251,8 +249,7 @@ def _run(case: Case, progress: Progress | None, open_frames=None,
         "spotpde_version": __version__,
         "case": case.to_toml(),
     }
-    if grid.hopper is not None:
-        attrs["hopper_angle"] = float(grid.hopper.angle)
+    attrs.update(grid.geometry.result_attrs)   # a hopper's angle
     attrs.update(steady_attrs)
     if case.source is not None:
         attrs["case_file"] = str(case.source)
@@ -260,7 +257,7 @@ def _run(case: Case, progress: Progress | None, open_frames=None,
     ds = make_dataset(grid, out, times=times, attrs=attrs)
     if interacting is not None:
         ds = importlib.import_module("spotpde.density.traffic").add_outputs(ds, case, interacting)
-    if case.data.get("pair") is not None:     # cage breaking at a point (spotpde.pair)
+    if case.pair is not None:     # cage breaking at a point (spotpde.pair)
         ds = importlib.import_module("spotpde.pair").add_to_result(case, ds)
     return ds
 
@@ -359,12 +356,8 @@ def initial_density(grid, start: TracerStart) -> np.ndarray:
         P = np.broadcast_to(np.exp(-0.5 * r2 / start.width**2), grid.shape).copy()
     else:
         raise ValueError(f"tracer start kind must be 'blob' or 'layers', got {start.kind!r}")
-    if grid.hopper is not None:     # no tracer outside the material
-        P = np.where(grid.active, P, 0.0)
-    if grid.axisymmetric:           # rings: sum(P * 2 pi r h**2) = 1
-        total = float((P * grid.cell_volumes).sum())
-    else:
-        total = P.sum() * grid.cell_volume
+    P = grid.geometry.restrict(P)      # no tracer outside the material
+    total = grid.geometry.total(P)     # rings: sum(P * 2 pi r h**2)
     if not total > 0:
         raise ValueError("tracer start puts no probability on the grid")
     return P / total
@@ -375,12 +368,12 @@ def _mask_outside(grid, arr: np.ndarray) -> np.ndarray:
     without the grid's trailing shape (``mass``, ``outflow``) are returned unchanged."""
     if arr.shape[-grid.dims:] != grid.shape:
         return arr
-    return np.where(grid.active, arr, np.nan)
+    return grid.geometry.blank(arr)
 
 
 def _outside_as_nan(grid, on_frame):
     """``on_frame`` writing each frame with NaN outside the material (hoppers)."""
-    if on_frame is None or grid.hopper is None:
+    if on_frame is None or not grid.geometry.masked:
         return on_frame
     return lambda index, time, P: on_frame(index, time, _mask_outside(grid, np.asarray(P)))
 

@@ -1,7 +1,7 @@
 """Standard figures of a result Dataset (matplotlib, drawn off-screen).
 
 :func:`plot_result` writes one multi-panel figure (PNG, PDF, SVG, ...: the format of the
-file's extension, written atomically by :func:`spotpde.app._figures.save_figure`): spot
+file's extension, written atomically by :func:`spotpde._figures.save_figure`): spot
 density; downward particle speed next to the kinematic model on the same colour scale;
 speed profiles at a few heights; streamlines of the particle drift; the tracer (the
 layered silo for a layered start, snapshots of the blob otherwise) and its mass budget.
@@ -17,7 +17,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from ._figures import prepare_matplotlib, save_figure
+from .._figures import figure_format, prepare_matplotlib, save_figure
 
 prepare_matplotlib()    # before matplotlib is imported: a writable home for its font cache
 
@@ -317,7 +317,7 @@ def plot_result(ds: xr.Dataset, path: str | os.PathLike, *, dpi: int = 100) -> P
     Args:
         ds: a result Dataset (from :func:`spotpde.run` or a netCDF file).
         path: the figure file, written atomically in the format its extension names
-            (``.png``, ``.pdf``, ``.svg``, ...: :func:`spotpde.app._figures.save_figure`).
+            (``.png``, ``.pdf``, ``.svg``, ...: :func:`spotpde._figures.save_figure`).
         dpi: resolution of a raster format, in dots per inch.
 
     Returns:
@@ -328,8 +328,6 @@ def plot_result(ds: xr.Dataset, path: str | os.PathLike, *, dpi: int = 100) -> P
             (:func:`plottable`).
         spotpde.errors.WriteError: the file could not be written (disk full, ...).
     """
-    from ._figures import figure_format
-
     figure_format(path)              # an unsupported extension: refused before drawing
     ds = plottable(ds)
     m = midplane(ds)

@@ -47,7 +47,7 @@ import xarray as xr
 
 from .._version import __version__
 from .cases import Case, check_arguments, load_case
-from ..errors import CaseError
+from ..errors import CaseError, NumericalError
 from ._connect import CONNECT_TIMEOUT, MAX_CONNECT_TIMEOUT, connect, connect_timeout  # noqa: F401
 
 #: Keys that change the grid cannot be swept into one Dataset.
@@ -428,7 +428,6 @@ def combine(case: Case, settings: Mapping[str, Sequence], results: list) -> xr.D
     Raises:
         spotpde.NumericalError: every member failed (there is nothing to combine).
     """
-    from ..errors import NumericalError
     from .io import cf_attrs, cf_units
 
     good = [r for _, r in results if isinstance(r, xr.Dataset)]

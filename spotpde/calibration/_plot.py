@@ -7,6 +7,8 @@ from __future__ import annotations
 import numpy as np
 import xarray as xr
 
+from .._figures import figure_format, prepare_matplotlib, save_figure
+
 __all__ = ["plot_fit"]
 
 
@@ -60,14 +62,12 @@ def plot_fit(ds: xr.Dataset, path=None, *, dpi: int = 100):
     Args:
         ds: the result of :func:`spotpde.fit` (or its netCDF file read back).
         path: if given, the figure is written there (the format of its extension,
-            written atomically: :func:`spotpde.app._figures.save_figure`).
+            written atomically: :func:`spotpde._figures.save_figure`).
         dpi: resolution of a raster file.
 
     Returns:
         The matplotlib Figure.
     """
-    from ..app._figures import figure_format, prepare_matplotlib, save_figure
-
     if path is not None:
         figure_format(path)          # an unsupported extension: refused before drawing
     prepare_matplotlib()

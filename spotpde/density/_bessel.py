@@ -25,6 +25,8 @@ the disk (a non-central chi-squared distribution) over its area.
 from __future__ import annotations
 
 import numpy as np
+from scipy.special import j0, j1, jn_zeros
+from scipy.stats import ncx2
 
 
 def cylinder_profile(r, s, orifice, r_range: tuple[float, float] | None = None,
@@ -43,9 +45,6 @@ def cylinder_profile(r, s, orifice, r_range: tuple[float, float] | None = None,
         ``v`` in 1/d**2 (unit flux through every height: ``integral 2 pi r v dr = 1``),
         the broadcast shape of ``r`` and ``s``.
     """
-    from scipy.special import j0, j1, jn_zeros
-    from scipy.stats import ncx2
-
     r = np.abs(np.asarray(r, dtype=float))
     s = np.asarray(s, dtype=float)
     if not np.all(s > 0):

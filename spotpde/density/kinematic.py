@@ -19,10 +19,13 @@ orifice as they fall. ``v`` obeys the same equation as the steady spot flux
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 from numba import njit
 from scipy.integrate import solve_ivp
+from scipy.optimize import minimize_scalar
+from scipy.special import erf
 
 from ..grid import Grid
 from ..parameters import Orifice, Spots
@@ -124,8 +127,6 @@ def slot_profile(x, s, orifice: Orifice, x_range: tuple[float, float] | None = N
     Returns:
         ``v`` in 1/d (unit flux through every height), the broadcast shape of ``x`` and ``s``.
     """
-    from scipy.special import erf
-
     x = np.asarray(x, dtype=float)
     s = np.asarray(s, dtype=float)
     if not np.all(s > 0):
@@ -190,10 +191,6 @@ def fit_profile(x, v, orifice: Orifice, x_range: tuple[float, float] | None = No
     Returns:
         ``(s, A)``; NaN if fewer than 4 finite points.
     """
-    import math
-
-    from scipy.optimize import minimize_scalar
-
     x, v = np.asarray(x, float), np.asarray(v, float)
     ok = np.isfinite(v) & (np.isfinite(se) if se is not None else True)
     if ok.sum() < 4:

@@ -198,7 +198,7 @@ def solve_case(case, progress=None) -> CaseResult:
     Frames: ``spots.frames`` equally spaced times on ``[0, spots.t_end]`` (default 101).
     """
     t_end = float(case.spots.t_end)
-    n = case.data["spots"].get("frames") or 101
+    n = case.spots.frames
     times = np.linspace(0.0, t_end, int(n))
     res = transient(case.grid, case.orifice, case.spots, t_end, times, progress=progress,
                     full_output=True)
@@ -288,9 +288,9 @@ def plot_space_time(ds, variable: str = "free_volume_t", x: float | None = None,
     density of the later half of the run mark the speed of small waves: meaningful only
     for a nearly uniform column.
     Returns the matplotlib Figure; ``path`` also saves it (the format of its extension,
-    written atomically: :func:`spotpde.app._figures.save_figure`).
+    written atomically: :func:`spotpde._figures.save_figure`).
     """
-    from ..app._figures import figure_format, prepare_matplotlib, save_figure
+    from .._figures import figure_format, prepare_matplotlib, save_figure
 
     if path is not None:
         figure_format(path)          # an unsupported extension: refused before drawing

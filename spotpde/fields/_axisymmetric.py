@@ -41,6 +41,7 @@ from ._common import _check_coefficient, _is_zero as _zero, spot_diffusivity
 from ._staircase import face_sources, passage_excess
 from .._roundoff import clip_roundoff
 from ..grid import Grid
+from ..parameters import drift_weight, wall_weight
 
 KEYS = ("u_r", "u_z", "D_rr", "D_rz", "D_zz")
 
@@ -118,7 +119,7 @@ def add_wall_layer(grid: Grid, kernel, lam: float, G: Mapping, phi, fields: dict
         return
     h = grid.spacing
     nz, nx = grid.shape
-    c = 1.0 - 2.0 * lam
+    c = wall_weight(lam)
     geometry = grid.geometry
     for axis, faces in ((1, geometry.wall_faces()), (0, geometry.horizontal_faces())):
         if not faces:
@@ -190,9 +191,9 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots, kernel, lam: float,
 
     drift_z = -rho * v_s * inv
     if lam != 0.0:
-        drift_z = drift_z + 2.0 * lam * div["z"] * inv
+        drift_z = drift_z + drift_weight(lam) * div["z"] * inv
         if np.any(div["r"]):
-            request("u_r", 2.0 * lam * div["r"] * inv, 1, 1)
+            request("u_r", drift_weight(lam) * div["r"] * inv, 1, 1)
     request("u_z", drift_z, 1, 0)
     inv2 = inv * inv
     for key, m in (("D_rr", 0), ("D_zz", 0), ("D_rz", 1)):

@@ -18,7 +18,7 @@ import numpy as np
 from . import convolution
 from ..geometry import derivative
 from ..grid import Grid
-from ..parameters import Spots
+from ..parameters import Spots, check_rule
 
 _COMPONENTS = {2: ("x", "z"), 3: ("x", "y", "z")}
 #: The largest negatives of ``D_p``'s diagonal taken for round-off, relative to its
@@ -58,14 +58,7 @@ def _check_coefficient(grid: Grid, name: str, value) -> None:
         raise ValueError(f"{name}: contains NaN or infinite values")
 
 
-def _check_rule(rule) -> float:
-    try:
-        lam = float(rule)
-    except (TypeError, ValueError):
-        raise ValueError(f"rule: must be a number (0.5 midpoint, 1 end point), got {rule!r}")
-    if not np.isfinite(lam) or not 0.0 <= lam <= 1.0:
-        raise ValueError(f"rule: must lie in [0, 1] (0.5 midpoint, 1 end point), got {rule!r}")
-    return lam
+_check_rule = check_rule   # the one statement of the rule's range (spotpde.parameters)
 
 
 def _check_inputs(grid: Grid, rho_s: np.ndarray, kernel) -> np.ndarray:

@@ -29,6 +29,7 @@ from ._common import _COMPONENTS, _axis, _box_derivative, _is_zero, _pair
 from ._fft import threads
 from .convolution import convolve, convolve_padded
 from ..grid import Grid
+from ..parameters import drift_weight
 
 __all__ = ["constant_fields", "fields_2d", "add_requests", "SpotFluxTensor"]
 
@@ -200,10 +201,10 @@ def constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s: Mapping, lam
             _subtract_planes(w_grad, stencil, _boundary_planes(grid, rho_p, b), axis, hd)
             for a, d in coeffs.items():
                 if len(coeffs) == 1 and fields[f"u_{a}"] is None:   # the usual case: in place
-                    w_grad *= 2.0 * lam * float(d)
+                    w_grad *= drift_weight(lam) * float(d)
                     fields[f"u_{a}"] = w_grad
                 else:
-                    accumulate(f"u_{a}", (2.0 * lam * float(d)) * w_grad)
+                    accumulate(f"u_{a}", (drift_weight(lam) * float(d)) * w_grad)
     for key in fields:
         if fields[key] is None:
             fields[key] = np.zeros(grid.shape)

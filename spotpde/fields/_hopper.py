@@ -33,6 +33,7 @@ from ._common import _is_zero as _zero
 from ._staircase import face_sources, passage_excess
 from .._roundoff import clip_roundoff
 from ..grid import DIFFUSIVITY_KEYS, DRIFT_KEYS, Grid
+from ..parameters import drift_weight, wall_weight
 
 
 def _face_stencil(grid: Grid, kernel, axis: int = 1) -> np.ndarray:
@@ -66,7 +67,7 @@ def add_wall_layer(grid: Grid, kernel, lam: float, G, phi, fields: dict) -> None
     if lam == 0.5:
         return
     nz, nx = grid.shape
-    c = 1.0 - 2.0 * lam
+    c = wall_weight(lam)
     geometry = grid.geometry
     for axis, faces in ((1, geometry.wall_faces()), (0, geometry.horizontal_faces())):
         if not faces:
@@ -106,9 +107,9 @@ def particle_fields(grid: Grid, rho_s, spots, kernel, lam, tensor, diffusivity, 
     div = grid.geometry.divergence(G)
     conv = _Convolutions(grid, kernel)
     keys = {}
-    keys["u_z"] = conv.request("u_z", -rho * v_s * inv + 2.0 * lam * div["z"] * inv, 1)
+    keys["u_z"] = conv.request("u_z", -rho * v_s * inv + drift_weight(lam) * div["z"] * inv, 1)
     if lam != 0.0 and np.any(div["x"]):
-        keys["u_x"] = conv.request("u_x", 2.0 * lam * div["x"] * inv, 1)
+        keys["u_x"] = conv.request("u_x", drift_weight(lam) * div["x"] * inv, 1)
     inv2 = inv * inv
     for key in DIFFUSIVITY_KEYS[2]:
         if not _zero(T[key]):

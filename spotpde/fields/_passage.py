@@ -48,11 +48,11 @@ from ._common import (_COMPONENTS, _as_point, _Convolutions, _is_zero, divergenc
 
 from ._passage_grids import _quadrature_grid, _shape
 from . import _passage_grids as _grids
+from ..parameters import check_diffusivity, check_rule
 
 __all__ = ["length_tensor", "effective_spot_length", "source_tensor", "keep_flux_velocity",
            "add_pair_correction", "proportional", "keys"]
 
-_DIFFUSIVITIES = ("passage", "mean-field")
 #: One-particle tensors already computed (the fields of transient runs ask again and again).
 _CACHE: dict = {}
 
@@ -79,10 +79,8 @@ def _check(kernel, b, b_par, rule, diffusivity):
         raise ValueError(f"b: must be a finite number > 0, got {b!r}")
     if not (np.isfinite(b_par) and b_par >= 0):
         raise ValueError(f"b_par: must be a finite number >= 0, got {b_par!r}")
-    if not (np.isfinite(lam) and 0.0 <= lam <= 1.0):
-        raise ValueError(f"rule: must lie in [0, 1] (0.5 midpoint, 1 end point), got {rule!r}")
-    if diffusivity not in _DIFFUSIVITIES:
-        raise ValueError(f"diffusivity: must be one of {list(_DIFFUSIVITIES)}, got {diffusivity!r}")
+    lam = check_rule(lam)
+    check_diffusivity(diffusivity)
     return dims, b, b_par, lam
 
 

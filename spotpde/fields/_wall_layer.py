@@ -20,6 +20,7 @@ import scipy.signal
 from . import _walls
 from ._common import _COMPONENTS, _SUBSAMPLE, _axis, _is_zero, _pair
 from ..grid import Grid
+from ..parameters import wall_weight
 
 # _COMPONENTS, _SUBSAMPLE, _axis, _is_zero, _pair live in coefficients, which imports
 # this module: they are imported inside the functions (as in _walls and _passage).
@@ -117,4 +118,4 @@ def add_wall_layer(grid: Grid, kernel, lam: float, G: Mapping, phi: np.ndarray |
             faces = {-1: -_face_value(g, axis, -1), +1: _face_value(g, axis, +1)}
             if phi is not None:  # renormalised: (D_s rho_s)·n / phi on the wall
                 faces = {s: v / _walls.face_value(phi, axis, s) for s, v in faces.items()}
-            fields[f"u_{a}"] += (1.0 - 2.0 * lam) * _wall_layer(grid, kernel, n, faces)
+            fields[f"u_{a}"] += wall_weight(lam) * _wall_layer(grid, kernel, n, faces)

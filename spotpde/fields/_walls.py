@@ -46,6 +46,7 @@ from ._common import (_COMPONENTS, _assemble, _box_derivative, _is_zero, _pair,
                       divergence)
 from ._constant import SpotFluxTensor, add_requests, constant_fields
 from ..grid import Grid
+from ..parameters import drift_weight
 
 __all__ = ["WALL_TREATMENTS", "check_walls", "renormalises", "coverage", "face_value",
            "renormalised_fields", "renormalised_constant_fields", "cutoff_marginal",
@@ -186,7 +187,7 @@ def renormalised_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: f
     u_terms = {a: [] for a in comps}
     for a in comps:
         if lam != 0.0 and np.any(div[a]):
-            u_terms[a].append((2.0 * lam, conv.request(f"div_{a}_phi", div[a] * inv, 1)))
+            u_terms[a].append((drift_weight(lam), conv.request(f"div_{a}_phi", div[a] * inv, 1)))
     if np.ndim(v_s) == 0:
         if float(v_s) != 0.0:
             u_terms["z"].append((-float(v_s), conv.request("rho_phi", rho_s * inv, 1)))
@@ -320,7 +321,7 @@ def renormalised_constant_fields(grid: Grid, rho_s: np.ndarray, v_s: float, D_s:
     for a in comps if lam != 0.0 else ():
         coeffs = {b: float(D_s[_pair(a, b)]) for b in comps if not _is_zero(D_s[_pair(a, b)])}
         if coeffs:
-            requests += [((f"u_{a}", 2.0 * lam * hd), box, e * sum(
+            requests += [((f"u_{a}", drift_weight(lam) * hd), box, e * sum(
                 d * _box_derivative(rho_s, h, box, grid.axes.index(b)) for b, d in coeffs.items()),
                 1) for box, e in zip(boxes, eps1)]
     T = D_s if D_source is None else D_source

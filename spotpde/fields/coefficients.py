@@ -53,7 +53,7 @@ from ._pairs import pair_diffusivity, velocity_correlation
 from ._wall_layer import add_wall_layer
 from .._roundoff import clip_roundoff
 from ..grid import DIFFUSIVITY_KEYS, DRIFT_KEYS, Grid
-from ..parameters import Spots
+from ..parameters import Spots, check_diffusivity, drift_weight
 
 __all__ = [
     "particle_fields",
@@ -114,7 +114,7 @@ def _general_fields(grid: Grid, rho_s: np.ndarray, v_s, D_s: Mapping, lam: float
     u_terms = {a: [] for a in comps}
     for a in comps:
         if lam != 0.0 and np.any(div[a]):
-            u_terms[a].append((2.0 * lam, conv.request(f"div_{a}", div[a], 1)))
+            u_terms[a].append((drift_weight(lam), conv.request(f"div_{a}", div[a], 1)))
     if np.ndim(v_s) == 0:
         if float(v_s) != 0.0:
             u_terms["z"].append((-float(v_s), conv.request("rho", rho_s, 1)))
@@ -184,8 +184,7 @@ def particle_fields(grid: Grid, rho_s: np.ndarray, spots: Spots, kernel, rule: f
         float64 arrays, ``u`` in d per unit time, ``D`` in d**2 per unit time.
     """
     lam = _check_rule(rule)
-    if diffusivity not in ("passage", "mean-field"):
-        raise ValueError(f"diffusivity: must be 'passage' or 'mean-field', got {diffusivity!r}")
+    check_diffusivity(diffusivity)
     build = _FIELDS_OF[grid.geometry.kind]
     return build(grid, rho_s, spots, kernel, lam, spot_diffusivity_tensor, diffusivity, walls,
                  mask)

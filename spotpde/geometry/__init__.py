@@ -16,11 +16,13 @@ imports nothing else from spotpde, so every module may import it.
 
 from ._differences import derivative, is_zero, masked_derivative
 from ._shapes import (AXISYMMETRIC_DIFFUSIVITY_KEYS, AXISYMMETRIC_DRIFT_KEYS, BOX_ONLY,
-                      DIFFUSIVITY_KEYS, DRIFT_KEYS, FEATURES, AxisymmetricGeometry,
+                      COORDINATES, DIFFUSIVITY_KEYS, DRIFT_KEYS, FEATURES,
+                      PLANE_ONLY, AxisymmetricGeometry,
                       BoxGeometry, ConeGeometry, Geometry, Support, WedgeGeometry,
-                      geometry_of)
+                      check_shape, geometry_of)
 
 __all__ = ["Geometry", "BoxGeometry", "AxisymmetricGeometry", "WedgeGeometry",
-           "ConeGeometry", "Support", "FEATURES", "BOX_ONLY", "geometry_of", "derivative",
+           "ConeGeometry", "Support", "FEATURES", "BOX_ONLY", "PLANE_ONLY", "COORDINATES",
+           "check_shape", "geometry_of", "derivative",
            "masked_derivative", "is_zero", "DRIFT_KEYS", "DIFFUSIVITY_KEYS",
            "AXISYMMETRIC_DRIFT_KEYS", "AXISYMMETRIC_DIFFUSIVITY_KEYS"]

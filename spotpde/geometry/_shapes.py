@@ -39,7 +39,39 @@ BOX_ONLY = {
     "cosine series": "cosine coefficients exist for Cartesian boxes only, not for "
                      "axisymmetric or hopper grids",
 }
-FEATURES = tuple(BOX_ONLY)
+#: Features measured on a plane of equal cells (2D boxes and wedges, not rings, not 3D);
+#: ``{shape}`` is replaced by the grid's dims (and ", axisymmetric" for rings).
+PLANE_ONLY = {
+    "track observables": "observables are measured on 2D Cartesian silos (domain.dims = 2, "
+                         "domain.coordinates = 'cartesian'), got {shape}; read a thin 3D "
+                         "silo with spotpde.tracks.read(..., dims=2)",
+}
+FEATURES = tuple(BOX_ONLY) + tuple(PLANE_ONLY)
+
+#: Coordinate systems of a grid: ``"cartesian"`` (2D ``(x, z)`` or 3D ``(x, y, z)``) or
+#: ``"axisymmetric"`` (``(r, z)``, a cylindrical silo, dims = 2).
+COORDINATES = ("cartesian", "axisymmetric")
+
+
+def check_shape(dims, x_range, coordinates, hopper) -> None:
+    """ValueError unless ``coordinates`` and ``hopper`` (a ``spotpde.grid.Hopper`` or
+    None) make a shape on a grid of ``dims`` over ``x_range`` (d): the one statement of
+    which combinations exist (called by :class:`spotpde.grid.Grid`)."""
+    if coordinates not in COORDINATES:
+        raise ValueError(f"coordinates must be one of {COORDINATES}, got {coordinates!r}")
+    curved = coordinates == "axisymmetric"
+    if curved:
+        if dims != 2:
+            raise ValueError(f"dims: axisymmetric coordinates have dims = 2 (r, z), got {dims!r}")
+        if float(x_range[0]) != 0.0:
+            raise ValueError(f"x range: axisymmetric coordinates need x = (0, a) (the axis "
+                             f"at r = 0), got {tuple(x_range)!r}")
+    if hopper is not None:
+        if dims != 2:
+            raise ValueError("hopper: hoppers exist on 2D and axisymmetric grids only")
+        if curved and hopper.centre != 0.0:
+            raise ValueError(f"hopper: an axisymmetric hopper is centred on the axis, "
+                             f"got centre {hopper.centre!r}")
 
 
 class Support(NamedTuple):
@@ -126,6 +158,28 @@ class Geometry:
         of open wall: both sides of a box, only outward from a symmetry axis."""
         return (0, p) if self.has_axis else (p, p)
 
+    @property
+    def description(self) -> str:
+        """A few words naming the shape for people: ``"2D"``, ``"3D"``, ``"axisymmetric
+        (z, r)"``, followed by ``", hopper <angle> degrees"`` for a hopper."""
+        return f"{self.grid.dims}D"
+
+    @property
+    def result_attrs(self) -> dict:
+        """Shape metadata a result Dataset carries beyond its coordinate system:
+        ``{"hopper_angle": degrees}`` for a hopper, else empty."""
+        return {}
+
+    def to_pde(self):
+        """The matching py-pde grid: ``pde.CartesianGrid`` with axes x, [y,] z (boxes) or
+        ``pde.CylindricalSymGrid`` with axes r, z (rings). Imports py-pde (optional)."""
+        import pde   # lazy: py-pde is an optional, heavy dependency
+
+        g = self.grid
+        bounds = [g.x_range] + ([g.y_range] if g.dims == 3 else []) + [g.z_range]
+        shape = [g.nx] + ([g.ny] if g.dims == 3 else []) + [g.nz]
+        return pde.CartesianGrid(bounds, shape)
+
     def coords(self) -> dict[str, np.ndarray]:
         """1D coordinate arrays by axis name (cell centres in d)."""
         g = self.grid
@@ -178,6 +232,16 @@ class Geometry:
     def restrict(self, a: np.ndarray) -> np.ndarray:
         """``a`` on the active cells, 0 elsewhere (a box returns ``a`` itself)."""
         return a
+
+    def blank(self, a: np.ndarray) -> np.ndarray:
+        """``a`` with NaN on the inactive cells (results outside the material); ``a``
+        itself when every cell is active."""
+        return a
+
+    def total(self, a: np.ndarray) -> float:
+        """``sum_cells a * volume``: the integral of a cell-centred density, in a's units
+        times d**dims (boxes: the sum times ``h**dims``) or d**3 (rings)."""
+        return a.sum() * self.grid.spacing**self.grid.dims
 
     def open_faces(self) -> tuple[np.ndarray, np.ndarray]:
         """Interior faces of a 2D grid that join two active cells: ``x`` faces
@@ -253,6 +317,11 @@ class Geometry:
     def supports(self, feature: str) -> Support:
         """Whether this geometry supports ``feature`` (one of :data:`FEATURES`), with the
         reason when it does not."""
+        if feature in PLANE_ONLY:
+            if self.grid.dims == 2 and not self.curved:
+                return Support(True)
+            shape = f"dims = {self.grid.dims}" + (", axisymmetric" if self.curved else "")
+            return Support(False, PLANE_ONLY[feature].format(shape=shape))
         if feature not in BOX_ONLY:
             raise ValueError(f"feature: must be one of {', '.join(map(repr, FEATURES))}, "
                              f"got {feature!r}")
@@ -304,6 +373,16 @@ class AxisymmetricGeometry(Geometry):
     def has_axis(self):
         return True
 
+    @property
+    def description(self):
+        return "axisymmetric (z, r)"
+
+    def to_pde(self):
+        import pde   # lazy: py-pde is an optional, heavy dependency
+
+        g = self.grid
+        return pde.CylindricalSymGrid(g.x_range[1], g.z_range, (g.nx, g.nz))
+
     def coords(self):
         return {"z": self.grid.z, "r": self.grid.x}
 
@@ -326,6 +405,9 @@ class AxisymmetricGeometry(Geometry):
 
     def restrict(self, a):
         return np.where(self.active, a, 0.0)
+
+    def total(self, a):
+        return float((a * self.cell_volumes).sum())
 
     def divergence(self, T, active=None):
         """Cylindrical divergence of an axisymmetric symmetric tensor with ``T_tt = T_rr``:
@@ -374,6 +456,17 @@ class _Hopper:
 
     def restrict(self, a):
         return np.where(self.active, a, 0.0)
+
+    def blank(self, a):
+        return np.where(self.active, a, np.nan)
+
+    @property
+    def description(self):
+        return f"{super().description}, hopper {self.grid.hopper.angle:g} degrees"
+
+    @property
+    def result_attrs(self):
+        return {"hopper_angle": float(self.grid.hopper.angle)}
 
     def clearance(self, x, z, margin=0.0):
         hop = self.grid.hopper

@@ -21,7 +21,8 @@ from ._measure import (displacement_statistics, measure, particle_frames, propag
 from ._particles import blob, dense_packing, lattice, layer_mask, random_packing
 from ._predict import spot_walks, uniform_flow_prediction
 from ._relax import DISTRIBUTIONS, Relax, draw_diameters, relax_packing
-from ._settings import MonteCarloSettings, replicas_from_case
+from ._replicas import replicas_from_case
+from ._settings import MonteCarloSettings
 from ._simulate import (CUTOFF, STEPS, KernelParams, MCResult, from_case, kernel_evaluate,
                         kernel_params, simulate)
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import os
+import tomllib
 from collections.abc import Callable, Mapping
 
 import numpy as np
@@ -51,8 +52,6 @@ def case_for(source, case) -> Case:
             raise TypeError(f"case: must be a Case, a case file or a mapping, got {type(case).__name__}")
         return load_case(case)
     if isinstance(source, xr.Dataset) and "case" in source.attrs and not is_tracks(source):
-        import tomllib
-
         return load_case(tomllib.loads(source.attrs["case"]))
     raise ValueError("case: give the case the tracks come from (its grid, orifice and walls "
                      "define the observables)")
@@ -61,11 +60,7 @@ def case_for(source, case) -> Case:
 def grid_of(case: Case):
     """The case's grid, which must be a 2D Cartesian silo (a hopper mask is fine)."""
     g = case.grid
-    if g.dims != 2 or g.axisymmetric:
-        raise ValueError(f"case: observables are measured on 2D Cartesian silos (domain.dims = 2, "
-                         f"domain.coordinates = 'cartesian'), got dims = {g.dims}"
-                         + (", axisymmetric" if g.axisymmetric else "")
-                         + "; read a thin 3D silo with spotpde.tracks.read(..., dims=2)")
+    g.geometry.require("track observables", "case")
     return g
 
 

@@ -173,14 +173,30 @@ def pair_separation(source, case=None, *, contact: float = 1.1, separation: floa
     s_attrs = units("1", "fraction of initially touching pairs still closer than the separation")
     m_attrs = units("d", "mean cage-breaking fall restricted to the fall grid")
     d_attrs = units("d", "median cage-breaking fall")
-    meta = (attrs, s_attrs, m_attrs, d_attrs)
     if not is_tracks(source):
-        return _model_survival(case, separation, falls, meta)
+        kernel, b, b_par, lam, diff = _model_params(case)
+        f_end = None if falls is None else float(np.max(falls))
+        # the grains' hard core is one diameter; ``contact`` only selects the data's pairs
+        res = pair.cage_breaking(kernel, b, lam, b_par, diff, contact=1.0,
+                                 separation=separation, start="contact", fall_end=f_end)
+        grid_f = np.linspace(0.0, float(res["fall"].values[-1]), 40) \
+            if falls is None else np.asarray(falls, float)
+        S = np.interp(grid_f, res["fall"].values, res["survival"].values)
+        mean, median = _summaries(grid_f, S)
+        ds = xr.Dataset({"survival": ("fall", S, s_attrs), "mean_fall": ((), mean, m_attrs),
+                         "median_fall": ((), median, d_attrs)},
+                        coords={"fall": ("fall", grid_f, units("d", "fall of the pair"))}, attrs=attrs)
+        return ds
     x, z, t = positions(source)
     x0, x1, z0, z1 = _region(grid, region)
     starts = check_positive("starts", starts, integer=True)
     first = np.unique(np.linspace(0, t.size - 2, min(starts, t.size - 1)).astype(int))
-    f, ev, ts = _pair_events(x, z, t, first, contact, separation, (x0, x1, z0, z1))
+    rows = _cage_events(x, z, t, first, contact, separation, (x0, x1, z0, z1))
+    if not rows:
+        raise ValueError(f"contact: no pair of tracked particles closer than {contact} d "
+                         "in the region at any start frame")
+    data = np.concatenate(rows)
+    f, ev, ts = data[:, 0], data[:, 1].astype(bool), data[:, 2]
     blk = block_of(ts, t, blocks)
     if falls is None:
         order = np.sort(f)
@@ -205,30 +221,11 @@ def pair_separation(source, case=None, *, contact: float = 1.1, separation: floa
     return ds
 
 
-def _model_survival(case, separation, falls, meta) -> xr.Dataset:
-    """:func:`pair_separation` of a model: the survival curve of ``pair.cage_breaking`` for
-    the case's kernel, ``b``, rule and diffusivity, on the data's falls when given."""
-    attrs, s_attrs, m_attrs, d_attrs = meta
-    kernel, b, b_par, lam, diff = _model_params(case)
-    f_end = None if falls is None else float(np.max(falls))
-    # the grains' hard core is one diameter; ``contact`` only selects the data's pairs
-    res = pair.cage_breaking(kernel, b, lam, b_par, diff, contact=1.0,
-                             separation=separation, start="contact", fall_end=f_end)
-    grid_f = np.linspace(0.0, float(res["fall"].values[-1]), 40) \
-        if falls is None else np.asarray(falls, float)
-    S = np.interp(grid_f, res["fall"].values, res["survival"].values)
-    mean, median = _summaries(grid_f, S)
-    ds = xr.Dataset({"survival": ("fall", S, s_attrs), "mean_fall": ((), mean, m_attrs),
-                     "median_fall": ((), median, d_attrs)},
-                    coords={"fall": ("fall", grid_f, units("d", "fall of the pair"))}, attrs=attrs)
-    return ds
-
-
-def _pair_events(x, z, t, first, contact, separation, region):
-    """Each pair of tracked particles closer than ``contact`` (d) at a start frame in
-    ``first``, with its midpoint in ``region``: its fall (d) until the pair is
-    ``separation`` apart (``event``) or one of them is lost (censored), and its start
-    time. Returns ``(fall, event, start time)`` arrays, one entry per pair."""
+def _cage_events(x, z, t, first, contact, separation, region) -> list[np.ndarray]:
+    """For each start frame ``k`` in ``first``: the pairs closer than ``contact`` (d)
+    whose midpoint lies in ``region`` ``(x0, x1, z0, z1)``, followed until they part
+    beyond ``separation`` (an event) or one is lost (censored). Returns one array per
+    start frame with pairs, rows ``(fall in d, event, start time)``."""
     x0, x1, z0, z1 = region
     rows = []
     for k in first:
@@ -254,8 +251,4 @@ def _pair_events(x, z, t, first, contact, separation, region):
         last = np.where(event, end_b, np.maximum(end_l - 1, 0))
         f_at = fall[np.arange(a.size), np.minimum(last, sep.shape[1] - 1)]
         rows.append(np.column_stack([np.maximum(f_at, 0.0), event, np.full(a.size, t[k])]))
-    if not rows:
-        raise ValueError(f"contact: no pair of tracked particles closer than {contact} d "
-                         "in the region at any start frame")
-    data = np.concatenate(rows)
-    return data[:, 0], data[:, 1].astype(bool), data[:, 2]
+    return rows

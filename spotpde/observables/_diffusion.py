@@ -22,25 +22,12 @@ particle velocity), averaged with the data's sample counts.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
 
 import numpy as np
 import xarray as xr
 
-from ._common import (
-    BLOCKS,
-    block_of,
-    case_for,
-    check_positive,
-    grid_of,
-    is_tracks,
-    jackknife,
-    model_velocity,
-    positions,
-    sample,
-    units,
-    with_errors,
-)
+from ._common import (BLOCKS, block_of, case_for, check_positive, grid_of, is_tracks,
+                      jackknife, model_velocity, positions, sample, units, with_errors)
 from ._velocity import grid_active, velocity_field
 
 __all__ = ["diffusion", "displacement_growth", "crossings", "path_residuals"]
@@ -198,31 +185,18 @@ def diffusion(source, case=None, *, fall: float = 1.0, bins=(5.0, 5.0), region=N
              "b_p_par": units("d", "vertical diffusion length per unit fall, D_zz/|u_z|"),
              "Pe_x": units("1", "horizontal Peclet number d/b_p"),
              "Pe_z": units("1", "vertical Peclet number d/b_p_par")}
-    bins = _Binning(grid, fall, ez, ex, (x0, x1, z0, z1), attrs, names)
     if not is_tracks(source):
-        return _model_diffusion(source, case, bins, velocity, like)
-    return _tracks_diffusion(source, case, bins, velocity, blocks, kwargs)
+        return _model_diffusion(source, case, grid, velocity, like, fall, ez, ex,
+                                (x0, x1, z0, z1), attrs, names)
+    return _tracks_diffusion(source, case, grid, velocity, blocks, fall, ez, ex,
+                             (x0, x1, z0, z1), attrs, names, **kwargs)
 
 
-class _Binning(NamedTuple):
-    """What both measurements of :func:`diffusion` share: the grid, the fall (d) between
-    the cutting heights, the bin edges ``ez``, ``ex`` (d), the region ``(x0, x1, z0, z1)``
-    (d), and the result's attributes and variable metadata."""
-
-    grid: object
-    fall: float
-    ez: np.ndarray
-    ex: np.ndarray
-    region: tuple
-    attrs: dict
-    names: dict
-
-
-def _model_diffusion(source, case, bins: _Binning, velocity, like) -> xr.Dataset:
-    """:func:`diffusion` of a model result: ``D_xx / |u_z|`` and ``D_zz / |u_z|`` averaged
-    over each bin (weighted by the tracks' segments when ``like`` is given), with the
-    focusing and the estimator's bias that the tracks' own measurement carries."""
-    grid, fall, ez, ex, (x0, x1, z0, z1), attrs, names = bins
+def _model_diffusion(source, case, grid, velocity, like, fall, ez, ex, region, attrs, names):
+    """:func:`diffusion` of a model result: ``D / |u_z|`` averaged over each bin (weights:
+    the tracks' segment histogram ``like`` or the active cells), with the estimator's
+    bias from the tracks' mean flow added."""
+    x0, x1, z0, z1 = region
     u = model_velocity(source, case)
     speed = np.where(u["u_z"] < 0, -u["u_z"], np.nan)
     weights = (like["segment_histogram"].values if like is not None
@@ -252,10 +226,11 @@ def _model_diffusion(source, case, bins: _Binning, velocity, like) -> xr.Dataset
     return ds
 
 
-def _tracks_diffusion(source, case, bins: _Binning, velocity, blocks, kwargs) -> xr.Dataset:
-    """:func:`diffusion` of tracks: the variance of each segment's departure from the mean
-    flow, per bin, with jackknife errors over ``blocks`` time blocks."""
-    grid, fall, ez, ex, (x0, x1, z0, z1), attrs, names = bins
+def _tracks_diffusion(source, case, grid, velocity, blocks, fall, ez, ex, region, attrs,
+                      names, **kwargs):
+    """:func:`diffusion` of tracks: the variances of the segments' residual displacements
+    per bin, with jackknife errors over ``blocks`` time blocks."""
+    x0, x1, z0, z1 = region
     x, z, t = positions(source)
     vel = velocity if velocity is not None else velocity_field(source, case, blocks=blocks, **kwargs)
     X, T = crossings(x, z, t, fall, grid.z_range[1])

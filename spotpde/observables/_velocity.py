@@ -89,7 +89,7 @@ def velocity_field(source, case=None, *, width: float = 1.0, blocks: int = BLOCK
 
 def grid_active(grid) -> np.ndarray:
     """Cells inside the material (all cells without a hopper)."""
-    return np.ones(grid.shape, bool) if grid.hopper is None else np.asarray(grid.active, bool)
+    return np.array(grid.active, bool)
 
 
 def default_heights(grid) -> np.ndarray:

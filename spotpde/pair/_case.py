@@ -54,8 +54,8 @@ def add_to_result(case, ds):
     """
     from ..fields.kernels import Uniform
 
-    p = case.data["pair"]
-    b_p = local_lengths(ds, p["x"], p["z"])
+    p = case.pair
+    b_p = local_lengths(ds, p.x, p.z)
     dims = case.grid.geometry.kernel_dims
     if case.model == "void":                         # one particle per void: C = 0 beyond d
         kernel = Uniform(radius=0.5, height=1.0, dims=dims)
@@ -70,25 +70,22 @@ def add_to_result(case, ds):
         if a.ndim == 0:
             return float(a)
         return float(ds["rho_s"].copy(data=a.reshape(ds["rho_s"].shape))
-                     .interp({"r" if "r" in ds.dims else "x": _radius(ds, p["x"]),
-                              "z": p["z"]}))
+                     .interp({"r" if "r" in ds.dims else "x": _radius(ds, p.x),
+                              "z": p.z}))
 
     b = at_point(case.spots.b)
     b_par = at_point(case.spots.b_par)
-    start = p.get("start")
-    if isinstance(start, dict):
-        start = (start["x"], start["z"])
     from ..pair import cage_breaking
 
     res = cage_breaking(kernel, b, rule=case.rule, b_par=b_par, diffusivity=diffusivity,
-                        contact=p["contact"], separation=p["separation"], start=start,
-                        spacing=p.get("spacing"), frames=p["frames"], b_p=b_p)
+                        contact=p.contact, separation=p.separation, start=p.start,
+                        spacing=p.spacing, frames=p.frames, b_p=b_p)
     names = {n: f"pair_{n}" for n in list(res.data_vars) + list(res.coords)}
     res = res.rename(names)
     out = ds.merge(res)
     out.attrs = dict(ds.attrs)
     out.attrs.update({f"pair_{k}": v for k, v in res.attrs.items()})
-    out.attrs.update({"pair_x": float(p["x"]), "pair_z": float(p["z"]),
+    out.attrs.update({"pair_x": float(p.x), "pair_z": float(p.z),
                       **{f"pair_b_p_{k}": v for k, v in b_p.items()}})
     if dims == 3:
         out.attrs.update({"pair_b_p_xz": dropped, "pair_relative_tensor": "mean-field"})

@@ -54,8 +54,8 @@ from scipy import integrate
 
 from ..errors import NumericalError
 from ..fields import _passage
+from ..parameters import DIFFUSIVITIES, check_diffusivity, check_rule
 
-DIFFUSIVITIES = ("passage", "mean-field")
 #: Subsamples per cell side used for the cut cells' areas, centroids and apertures.
 _SUB = 32
 
@@ -113,8 +113,7 @@ def relative_tensor(kernel, b, rule=0.5, b_par=0.0, diffusivity="passage", X=0.0
     mean-field form ``2 b_p^xz (1 - C)``. A component whose uniform diagonal value
     vanishes takes the mean-field form ``2 b_p^ab (1 - C)``.
     """
-    if diffusivity not in DIFFUSIVITIES:
-        raise ValueError(f"diffusivity must be one of {DIFFUSIVITIES}, got {diffusivity!r}")
+    check_diffusivity(diffusivity)
     if diffusivity == "mean-field":
         return mean_field_tensor(kernel, b, b_par, X, Z, b_p=b_p)
     _check_kernel_2d(kernel)
@@ -472,10 +471,8 @@ def _check_args(b, b_par, rule, diffusivity, contact, separation, start):
         raise ValueError(f"b must be > 0 (without spot diffusion no cage breaks), got {b}")
     if b_par < 0:
         raise ValueError(f"b_par must be >= 0, got {b_par}")
-    if not 0.0 <= float(rule) <= 1.0:
-        raise ValueError(f"rule must be in [0, 1], got {rule}")
-    if diffusivity not in DIFFUSIVITIES:
-        raise ValueError(f"diffusivity must be one of {', '.join(DIFFUSIVITIES)}, got {diffusivity!r}")
+    check_rule(rule)
+    check_diffusivity(diffusivity)
     if not contact > 0:
         raise ValueError(f"contact must be > 0, got {contact}")
     if not separation > contact:

@@ -47,6 +47,7 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse import csgraph
 
 from . import _advection, _diffusion, _geometry, _steady_limited
 from ._operator import _check_fields, _Operator
@@ -190,7 +191,6 @@ class _Assembly:
 def _reachable(M, seeds):
     """Boolean mask of the nodes reachable from ``seeds`` along ``j -> i`` where
     ``M_ij != 0`` (breadth-first search, :mod:`scipy.sparse.csgraph`)."""
-    from scipy.sparse import csgraph
     n = M.shape[0]
     adj = (M != 0).T.tocsr().astype(np.int8)
     # a super node n linked to every seed

@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 import spotpde
-from spotpde.analysis import layers
+from spotpde.app import layers
 
 
 def small(path, limiter="weno5", diffusivity=None):

@@ -1,6 +1,6 @@
 """Faults of figure writing (issue 30, items 1, 2, 3, 15, 16, 18), each reproduced.
 
-Every figure goes through one atomic writer, :func:`spotpde.app._figures.save_figure`.
+Every figure goes through one atomic writer, :func:`spotpde._figures.save_figure`.
 Interruptions, full disks and races are made deterministic by replacing
 ``Figure.savefig`` with a function that writes part of a figure into the file it is
 given and then sends the process a real SIGTERM or raises the ``OSError`` of a full disk,
@@ -26,7 +26,8 @@ from pathlib import Path
 import pytest
 from matplotlib.figure import Figure
 
-from spotpde.app import _figures, _outputs, cli, pipeline, plotting
+from spotpde import _figures
+from spotpde.app import _outputs, cli, pipeline, plotting
 from spotpde.app import io as sio
 from spotpde.app.cases import load_case
 from spotpde.errors import WriteError
@@ -175,7 +176,7 @@ def test_every_figure_in_the_package_goes_through_the_atomic_writer():
         for n, line in enumerate(path.read_text().splitlines(), 1):
             if re.search(r"\.savefig\(", line) and not line.lstrip().startswith("#"):
                 calls.append(f"{path.relative_to(ROOT)}:{n}")
-    assert [c.split(":")[0] for c in calls] == ["spotpde/app/_figures.py"], calls
+    assert [c.split(":")[0] for c in calls] == ["spotpde/_figures.py"], calls
 
 
 # -- item 2: no predictable temporary name, no race ----------------------------------------

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import spotpde
-from spotpde.geometry import (FEATURES, AxisymmetricGeometry, BoxGeometry, ConeGeometry,
+from spotpde.geometry import (BOX_ONLY, FEATURES, AxisymmetricGeometry, BoxGeometry, ConeGeometry,
                               WedgeGeometry, geometry_of)
 from spotpde.grid import Grid, Hopper
 
@@ -130,7 +130,8 @@ def test_wall_faces_of_each_shape():
 
 def test_one_statement_of_what_each_shape_supports():
     g = _shapes()
-    for feature in FEATURES:
+    assert set(BOX_ONLY) < set(FEATURES)
+    for feature in BOX_ONLY:
         assert g["box"].geometry.supports(feature).ok
         assert g["box3"].geometry.supports(feature) == (True, "")
         for name in ("axisymmetric", "wedge", "cone"):
@@ -145,18 +146,66 @@ def test_one_statement_of_what_each_shape_supports():
         g["box"].geometry.supports("teleportation")
 
 
+def test_shape_answers_for_the_stages():
+    """What the app and observables ask instead of testing flags: description, result
+    metadata, integral, blanking, the py-pde grid and the refusals of track observables."""
+    g = _shapes()
+    assert g["box"].geometry.description == "2D" and g["box3"].geometry.description == "3D"
+    assert g["axisymmetric"].geometry.description == "axisymmetric (z, r)"
+    assert g["wedge"].geometry.description == "2D, hopper 30 degrees"
+    assert g["cone"].geometry.description == "axisymmetric (z, r), hopper 30 degrees"
+    assert g["box"].geometry.result_attrs == {} == g["axisymmetric"].geometry.result_attrs
+    assert g["cone"].geometry.result_attrs == {"hopper_angle": 30.0}
+    # the integral of a uniform density 1 is the volume of the silo (rings exactly)
+    cyl = g["axisymmetric"]
+    assert cyl.geometry.total(np.ones(cyl.shape)) == pytest.approx(np.pi * 16.0 * 10.0, rel=1e-13)
+    assert g["box3"].geometry.total(np.ones(g["box3"].shape)) == pytest.approx(4.0 * 4.0 * 3.0)
+    wedge = g["wedge"]
+    ones = np.ones(wedge.shape)
+    blanked = wedge.geometry.blank(ones)
+    assert np.all(np.isnan(blanked[~wedge.active])) and np.all(blanked[wedge.active] == 1.0)
+    assert g["box"].geometry.blank(ones[:20, :16]) is not None
+    assert cyl.geometry.blank(ones) is ones and cyl.axisymmetric and not g["wedge"].axisymmetric
+    for name in ("box", "wedge"):
+        assert g[name].geometry.supports("track observables").ok
+    s = g["box3"].geometry.supports("track observables")
+    assert not s.ok and "got dims = 3;" in s.reason
+    with pytest.raises(ValueError, match="^case: observables .* got dims = 2, axisymmetric;"):
+        g["cone"].geometry.require("track observables", "case")
+    with pytest.raises(ValueError, match="centred on the axis"):
+        Grid(2, (0.0, 4.0), (0.0, 4.0), 1.0, coordinates="axisymmetric", hopper=Hopper(30.0, 1.0, 1.0))
+    with pytest.raises(ValueError, match="^coordinates must be one of"):
+        Grid(2, (0.0, 4.0), (0.0, 4.0), 1.0, coordinates="polar")
+    pde = pytest.importorskip("pde")
+    assert isinstance(cyl.to_pde(), pde.CylindricalSymGrid)
+    assert isinstance(g["box3"].to_pde(), pde.CartesianGrid) and g["box3"].to_pde().shape == (8, 6, 8)
+
+
 # -- structure -----------------------------------------------------------------------------
 
-#: Stage packages that ask ``grid.geometry`` instead of testing which grid they have.
-CONVERTED = ("fields", "density", "tracer", "analysis")
+#: Every module outside :mod:`spotpde.geometry` asks ``grid.geometry`` instead of testing
+#: which grid it has: the subpackages and the top-level modules.
+CONVERTED = tuple(sorted(p.name for p in PACKAGE.iterdir()
+                         if p.is_dir() and (p / "__init__.py").exists() and p.name != "geometry")
+                  + sorted(p.name for p in PACKAGE.glob("*.py")))
+
+#: The one known exception: montecarlo's ``from_case`` refuses axisymmetric and hopper
+#: cases by reading the grid's flags (its replacement is under way elsewhere); flag reads
+#: anywhere else in that module still fail the test.
+KNOWN_FLAG_READS = {"montecarlo/_simulate.py": {"from_case"}}
 
 
-def _flag_tests(path):
+def _flag_tests(path, allowed=()):
     """Lines reading ``.axisymmetric`` / ``.hopper`` of anything but ``self``, or comparing
-    ``.coordinates`` (copying it into result metadata is not a test)."""
+    ``.coordinates`` (copying it into result metadata is not a test), outside the
+    functions named in ``allowed``."""
     tree = ast.parse(path.read_text())
+    skip = {id(n) for f in ast.walk(tree)
+            if isinstance(f, ast.FunctionDef) and f.name in allowed for n in ast.walk(f)}
     lines = []
     for n in ast.walk(tree):
+        if id(n) in skip:
+            continue
         if isinstance(n, ast.Attribute) and n.attr in ("axisymmetric", "hopper") \
                 and not (isinstance(n.value, ast.Name) and n.value.id == "self"):
             lines.append(n.lineno)
@@ -167,10 +216,22 @@ def _flag_tests(path):
     return lines
 
 
+def test_every_package_but_geometry_is_converted():
+    names = set(CONVERTED)
+    assert {"app", "montecarlo", "observables", "pair", "grid.py", "parameters.py"} <= names
+    assert "geometry" not in names
+    # the detector finds what it looks for: the geometry package itself reads the flags
+    assert _flag_tests(PACKAGE / "geometry" / "_shapes.py")
+
+
 @pytest.mark.parametrize("package", CONVERTED)
 def test_converted_stages_read_no_geometry_flag(package):
-    reads = {str(p.relative_to(PACKAGE)): _flag_tests(p)
-             for p in sorted((PACKAGE / package).rglob("*.py"))}
+    root = PACKAGE / package
+    files = sorted(root.rglob("*.py")) if root.is_dir() else [root]
+    reads = {}
+    for p in files:
+        rel = p.relative_to(PACKAGE).as_posix()
+        reads[rel] = _flag_tests(p, KNOWN_FLAG_READS.get(rel, ()))
     assert {k: v for k, v in reads.items() if v} == {}
 
 

@@ -6,7 +6,7 @@
 :func:`~spotpde.calibration.plot_fit` and :func:`~spotpde.traffic.plot_space_time`.
 
 * The format is the one the file's extension names (``fig.pdf`` is a PDF, ``fig.svg``
-  an SVG); an extension outside :data:`~spotpde.app._outputs.FIGURE_FORMATS` is refused.
+  an SVG); an extension outside :data:`FIGURE_FORMATS` is refused.
 * The figure is drawn into a temporary file that :func:`tempfile.mkstemp` creates
   exclusively (``O_EXCL``) under an unpredictable name in the target's directory
   (``.NAME.XXXXXXXX.tmp``), flushed to the disk (``fsync``), given the usual permissions
@@ -34,8 +34,12 @@ import sys
 import tempfile
 from pathlib import Path
 
-from ..errors import WriteError
-from ._outputs import FIGURE_FORMATS
+from . import _cache
+from .errors import WriteError
+
+#: Extensions of the figures matplotlib's Agg, PDF, PS and SVG backends write.
+FIGURE_FORMATS = ("png", "pdf", "svg", "svgz", "eps", "ps", "jpg", "jpeg", "tif", "tiff",
+                  "webp")
 
 __all__ = ["figure_format", "prepare_matplotlib", "save_figure"]
 
@@ -45,7 +49,7 @@ def figure_format(path: str | os.PathLike) -> str:
 
     Raises:
         ValueError: ``path: unsupported figure format ...`` for an extension outside
-            :data:`~spotpde.app._outputs.FIGURE_FORMATS` (or none).
+            :data:`FIGURE_FORMATS` (or none).
     """
     suffix = Path(os.fspath(path)).suffix
     fmt = suffix.lower().lstrip(".")
@@ -161,8 +165,6 @@ def prepare_matplotlib() -> Path | None:
     dirs = _matplotlib_dirs()
     if dirs is not None and all(_usable(d) for d in dirs):
         return None
-    from .. import _cache
-
     for candidate in (_cache.user_cache_dir() / "matplotlib",
                       _cache.fallback_dir() / "matplotlib"):
         if _cache.writable(candidate):
