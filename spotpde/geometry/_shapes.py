@@ -35,9 +35,6 @@ BOX_ONLY = {
                             "Cartesian silos only (no axisymmetric grids, no hoppers)",
     "sde ensemble": "sde_ensemble walks particles in a Cartesian box; axisymmetric grids "
                     "and hoppers are not supported",
-    "long-run stepping": "is for Cartesian boxes; axisymmetric and hopper grids step "
-                         "explicitly (use 'explicit' or 'auto', or t_end = inf for the "
-                         "geometrical propagator)",
     "kinematic comparison": "the comparison fits Gaussian profiles across a Cartesian box; "
                             "domain.coordinates = \"axisymmetric\" and domain.hopper_angle "
                             "are not supported (see notebooks/hoppers.ipynb for hopper flows)",
