@@ -23,6 +23,11 @@ Both are exactly conservative (every stage is a difference of face fluxes; the r
 integral ``S = int P dt`` of the implicit parts gives their outflow and ``P_height``, so
 ``mass + outflow = mass0`` to round-off) and positive (the M-matrix; the second-order
 corrections are limited, or the step redone by backward Euler).
+
+On axisymmetric and hopper grids (:mod:`._geometry`) the same code steps ``Q = 2 pi r P``
+on the Cartesian twin: the face velocities and the diffusion (exchange matrix, flux map,
+axial coefficients) are taken from the explicit scheme's operator of the geometry
+(``op.implicit_parts()``), never assembled for a box.
 """
 
 from __future__ import annotations

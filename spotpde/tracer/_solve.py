@@ -167,8 +167,8 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
             take more than ``AUTO_IMEX_STEPS`` steps and fewer than 1 % of the moving
             cells are 4 or more times faster than the rest (``split`` is then at most
             that ratio and at most ``MAX_AUTO_SPLIT``), else ``"explicit"``. All are
-            positive and conservative
-            (docs/long_runs.md).
+            positive and conservative, on every grid: axisymmetric and hopper grids
+            step the explicit scheme's operator of their geometry (docs/long_runs.md).
         tol: ``"implicit"``: local error per step, L1 relative to the initial mass, in
             (0, 1).
         split: ``"multirate"`` / ``"imex"``: ratio (>= 1) of the step to the explicit
