@@ -29,12 +29,15 @@ Schemes: ``explicit`` (today's default: WENO5, SSP-RK3, Strang-split implicit di
   (against explicit at cfl 0.2 on the same grid) in the orifice row and above, for
   explicit and multirate at several steps: the error grows like the step (the splitting
   of the orifice row's stiff diffusion from its outflow), whence ``MAX_AUTO_SPLIT``.
+* ``--cylinder``: the void model in a cylinder (axisymmetric, point orifice on the axis)
+  at h = 0.25 to ``--cyl-t``, every scheme against explicit WENO5 at h = 0.125, timed
+  (best of ``--repeat``); and ``auto_split`` of a small ``cases/cylinder_hopper.toml``.
 * ``--flagship``: ``cases/quasi2d_layers.toml`` as it is (t_end = 600, 13 frames), both
   schemes, timed, and their distance (L1 of frames and ``P_height``); ``--flagship-ref``
   adds explicit WENO5 at h = 0.125 as the finer reference.
 
 Run: ``python benchmarks/long_runs.py [--t-cut 20] [--window 2000] [--convergence]
-[--orifice-row] [--flagship [--flagship-ref]] [--no-void]``.
+[--orifice-row] [--flagship [--flagship-ref]] [--cylinder [--cyl-t 150]] [--no-void]``.
 """
 
 from __future__ import annotations
@@ -348,6 +351,76 @@ def flagship(args):
                   f"{np.abs(r.outflow - rf.outflow).max():.2e}")
 
 
+def void_cylinder(h, T, radius=6.0, top=12.0, rate=9.0):
+    """The void model in a cylinder (axisymmetric), a point orifice on the axis: the
+    speed grows like 1 / r**2 next to it, so a few cells set the explicit step."""
+    return load_case({
+        "domain": {"dims": 2, "coordinates": "axisymmetric", "x": [0.0, radius],
+                   "z": [0.0, top], "spacing": h, "walls": "reflecting"},
+        "orifice": {"x": 0.0, "width": 0.0, "rate": rate},
+        "spots": {"b": 1.3},
+        "kernel": {"shape": "uniform", "size": 0.5, "volume": 0.5236, "rule": 1.0},
+        "tracer": {"model": "void", "start": {"x": 1.0, "z": 8.0, "width": 1.0},
+                   "t_end": T, "frames": 5}})
+
+
+def cylinder(args):
+    """Axisymmetric long runs: the void cylinder at h = 0.25 against explicit WENO5 at
+    h = 0.125 (frames coarsened by mass, P_height by flux), every scheme timed (best of
+    --repeat, interleaved); and the auto choice on a small cylinder_hopper.toml."""
+    T = args.cyl_t
+    print(f"void model, cylinder r < 6, z < 12, point orifice on the axis, release (1, 8), "
+          f"t in [0, {T:g}] (5 frames); reference: explicit WENO5 at h = 0.125")
+    fine, ff, fP0 = setup(void_cylinder(0.125, T))
+    t, ref = timed(lambda: tracer.solve(fine, ff, fP0, T, 5))
+    describe("explicit h=0.125 (reference)", t, ref)
+    grid, f, P0 = setup(void_cylinder(0.25, T))
+    geo, fgeo = grid.geometry, fine.geometry
+    from spotpde.tracer import _geometry, _solve
+    op = _geometry.operator(grid, _solve._check_fields(grid, f, "fields"), 6,
+                            np.ones(grid.shape[1:], bool), implicit=False)
+    print(f"  h = 0.25: {grid.size} cells, auto_split {_implicit.auto_split(op.faces, 0.25):.2f}"
+          f" (auto takes multirate beyond {_solve.AUTO_IMEX_STEPS} explicit steps)")
+    nz, nx = grid.shape
+    mass_ref = (ref.P * fgeo.cell_volumes).reshape(5, nz, 2, nx, 2).sum(axis=(2, 4))
+    flux_ref = (ref.P_height_faces[::2] * fgeo.horizontal_measures).reshape(
+        nz + 1, nx, 2).sum(axis=2)
+    schemes = (("explicit", {}), ("multirate", {"stepping": "multirate"}),
+               ("imex", {"stepping": "imex"}), ("implicit", {"stepping": "implicit"}),
+               ("auto", {"stepping": "auto"}))
+    for _, kw in schemes:                       # compile
+        tracer.solve(grid, f, P0, 1.0, 2, **kw)
+    best, runs = {}, {}
+    for _ in range(args.repeat):
+        for name, kw in schemes:
+            t, r = timed(lambda: tracer.solve(grid, f, P0, T, 5, **kw))
+            best[name] = min(best.get(name, np.inf), t)
+            runs[name] = r
+    for name, _ in schemes:
+        r = runs[name]
+        describe(name, best[name], r)
+        e_p = max(float(np.abs(p * geo.cell_volumes - m).sum()) for p, m in zip(r.P, mass_ref))
+        e_o = float(np.abs(r.outflow - ref.outflow).max())
+        e_h = float(np.abs(r.P_height_faces * geo.horizontal_measures - flux_ref).sum())
+        o = r.options
+        print(f"  {name}: {best[name]:.2f} s ({best['explicit'] / best[name]:.1f}x), "
+              f"{r.steps} steps, split {o.get('split', '-')}, box {o.get('box_cells', 0)} "
+              f"cells, {o.get('substeps', 0)} sub-steps; error vs reference: "
+              f"max L1(P) {e_p:.2e}, max |outflow| {e_o:.2e}, L1(P_height) "
+              f"{e_h * grid.spacing:.2e}; mass error {r.mass_error:.1e}, "
+              f"min P {r.P.min():.1e}")
+    path = pathlib.Path(__file__).resolve().parents[1] / "cases" / "cylinder_hopper.toml"
+    raw = tomllib.loads(path.read_text())
+    raw.pop("output", None)
+    raw["domain"].update(x=[0.0, 8.0], z=[0.0, 24.0])
+    grid, f, P0 = setup(load_case(raw))
+    op = _geometry.operator(grid, _solve._check_fields(grid, f, "fields"), 6,
+                            np.ones(grid.shape[1:], bool), implicit=False)
+    print(f"cylinder_hopper.toml, r < 8, z < 24 (spot model, cone, 4 d orifice): auto_split "
+          f"{_implicit.auto_split(op.faces, grid.spacing):.2f} (below MIN_SPLIT = "
+          f"{_implicit.MIN_SPLIT:g}: \"auto\" stays explicit however long the run)")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--t-cut", type=float, default=20.0)
@@ -373,6 +446,9 @@ def main():
     ap.add_argument("--flagship", action="store_true")
     ap.add_argument("--flagship-ref", action="store_true")
     ap.add_argument("--no-void", action="store_true", help="skip the default void section")
+    ap.add_argument("--cylinder", action="store_true",
+                    help="axisymmetric: the void cylinder's schemes against h / 2")
+    ap.add_argument("--cyl-t", type=float, default=150.0)
     args = ap.parse_args()
     if not args.no_void:
         void(args)
@@ -386,6 +462,8 @@ def main():
         orifice_row(args)
     if args.flagship:
         flagship(args)
+    if args.cylinder:
+        cylinder(args)
 
 
 if __name__ == "__main__":

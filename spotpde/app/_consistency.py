@@ -153,10 +153,6 @@ def _check_tracer(v: _Validator, d: dict, s: dict, t: dict | None, y_extent) -> 
     if long_run and s["mode"] == "transient":
         v.bad("tracer.stepping", f'"{t["stepping"]}" needs steady fields (spots.mode = '
               '"steady"); use "explicit" or "auto" in a starting flow', t["stepping"])
-    if long_run and (d.get("coordinates") == "axisymmetric" or "hopper_angle" in d):
-        v.bad("tracer.stepping", f'"{t["stepping"]}" is for Cartesian boxes; axisymmetric '
-              'and hopper silos step explicitly (use "explicit" or "auto", or tracer.t_end '
-              "= inf for the geometrical propagator)", t["stepping"])
     if t is not None and "split" in t and t.get("stepping") not in ("multirate", "imex", "auto"):
         v.bad("tracer.split", 'is only used with tracer.stepping = "multirate", "imex" or '
               '"auto"; remove it', t["split"])

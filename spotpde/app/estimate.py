@@ -25,7 +25,7 @@ benchmarks/steady.py):
 outside the fast box, ``dt = cfl / max_slow a``, so its steps are known the same way;
 a step costs the SSP-RK3 step of the grid, its implicit diffusion (three solves and the
 limiter, measured as costly as the explicit scheme's two solves: the same rate) and the
-box's sub-steps. Axisymmetric and hopper grids always step explicitly.
+box's sub-steps, on every grid (axisymmetric and hopper grids too).
 
 Transient spots (``spots.mode = "transient"``, :func:`transient_estimate`) are
 time-stepped before anything else: the spot density by BDF2 in ``max(20, ceil(T max v_s
@@ -95,7 +95,7 @@ def tracer_steps(grid, fields, t_end: float, frames: int, *, limiter: str = "wen
     Raises:
         ValueError: ``t_end``, ``frames``, ``cfl`` or ``stepping`` out of range.
     """
-    from ..tracer import _advection, _geometry
+    from ..tracer import _advection
     from ..tracer._geometry import operator
     from ..tracer._solve import _check_fields, choose_stepping
     if stepping not in ("explicit", "multirate", "auto"):
@@ -127,9 +127,7 @@ def tracer_steps(grid, fields, t_end: float, frames: int, *, limiter: str = "wen
     per_step = cells / step_rate
     if implicit:
         per_step += cells / IMPLICIT_RATE
-    # axisymmetric and hopper grids always step explicitly (tracer.solve)
-    mode, split = ("explicit", split) if _geometry.special(grid) else \
-        choose_stepping(stepping, split, op.faces, grid.spacing, steps)
+    mode, split = choose_stepping(stepping, split, op.faces, grid.spacing, steps)
     if mode == "multirate" and math.isfinite(per):
         from ..tracer._implicit import partition
         from ..tracer._multirate import box_of

@@ -33,9 +33,6 @@ BOX_ONLY = {
                          "axisymmetric or hopper grids",
     "sde ensemble": "sde_ensemble walks particles in a Cartesian box; axisymmetric grids "
                     "and hoppers are not supported",
-    "long-run stepping": "is for Cartesian boxes; axisymmetric and hopper grids step "
-                         "explicitly (use 'explicit' or 'auto', or t_end = inf for the "
-                         "geometrical propagator)",
     "cosine series": "cosine coefficients exist for Cartesian boxes only, not for "
                      "axisymmetric or hopper grids",
 }

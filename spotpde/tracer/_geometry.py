@@ -252,7 +252,8 @@ class _GeometryOperator(_Operator):
         self.limiter = limiter
         self.implicit = implicit
         self.faces = geometry.faces(fields, outlet)
-        self.terms, self.n_bad, self._L, self._Bz, _, coef = geometry.diffusion(fields)
+        self.terms, self.n_bad, self._L, self._Bz, self._axial, coef = \
+            geometry.diffusion(fields)
         zx, zz, zd = (np.zeros((n, m)) for n, m in ((grid.nz, grid.nx - 1),
                                                     (grid.nz - 1, grid.nx),
                                                     (grid.nz - 1, grid.nx - 1)))
@@ -270,6 +271,13 @@ class _GeometryOperator(_Operator):
         self.Axx = self.Azz = self.C = np.zeros(grid.shape)
         self.k_cross = False
         self._lu = {}
+
+    def implicit_parts(self):
+        """:meth:`._operator._Operator.implicit_parts` of this geometry: the exchange
+        matrix ``L`` of ``Q`` (metric, walls), its flux map ``Bz`` and the axial
+        coefficients the steady solve's hybrid weights use, so the long-run steppers
+        step the explicit scheme's operator."""
+        return self._axial, self._L, self._Bz, self.n_bad
 
     def rhs(self, P: np.ndarray, ws, w_acc: float, stage: tuple | None = None):
         """:func:`._operator._rhs` for this operator: the advection kernel, then the
@@ -313,10 +321,11 @@ def _to_physical(res, w):
 
 
 def solve(core, grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl, outlet,
-          check_mass, on_frame=None):
+          check_mass, on_frame=None, stepping="explicit", tol=1e-5, split=None):
     """:func:`._solve._solve` (``core``) on an axisymmetric or hopper grid: steps ``Q`` on
-    the Cartesian twin with :class:`_GeometryOperator` and returns physical ``P``,
-    ``P_height`` (per unit horizontal area when axisymmetric)."""
+    the Cartesian twin with :class:`_GeometryOperator` (every ``stepping``: the long-run
+    schemes take its faces and exchanges, :meth:`_GeometryOperator.implicit_parts`) and
+    returns physical ``P``, ``P_height`` (per unit horizontal area when axisymmetric)."""
     geo = _Geometry(grid)
     geo.check_P0(P)
     w = geo.weight
@@ -328,7 +337,7 @@ def solve(core, grid, fields, P, t_end, frames, progress, lim, scheme, diffusion
     on_q = None if on_frame is None else (lambda j, t, Qj: on_frame(j, t, Qj / w))
     make_op = functools.partial(_GeometryOperator, geo)
     res = core(geo.twin, fq, Q, t_end, frames, progress, lim, scheme, diffusion, cfl, outlet,
-               check_mass, on_q, make_op=make_op)
+               check_mass, on_q, stepping, tol, split, make_op=make_op)
     res.options["coordinates"] = grid.coordinates
     return _to_physical(res, w)
 

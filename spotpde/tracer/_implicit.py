@@ -23,6 +23,11 @@ Both are exactly conservative (every stage is a difference of face fluxes; the r
 integral ``S = int P dt`` of the implicit parts gives their outflow and ``P_height``, so
 ``mass + outflow = mass0`` to round-off) and positive (the M-matrix; the second-order
 corrections are limited, or the step redone by backward Euler).
+
+On axisymmetric and hopper grids (:mod:`._geometry`) the same code steps ``Q = 2 pi r P``
+on the Cartesian twin: the face velocities and the diffusion (exchange matrix, flux map,
+axial coefficients) are taken from the explicit scheme's operator of the geometry
+(``op.implicit_parts()``), never assembled for a box.
 """
 
 from __future__ import annotations
@@ -93,19 +98,29 @@ class IMEXStrang:
                  "ours, after Zalesak 1979, J. Comput. Phys. 31, 335")
 
 
-def build_operator(grid, f, faces, scheme="hybrid"):
+def build_operator(grid, f, faces, scheme="hybrid", parts=None):
     """The linear operator ``A`` (CSC, 1/time) of the hybrid advection through ``faces``
     (face velocities, :func:`spotpde.tracer._advection.face_velocities`, possibly with
     some set to 0) plus the whole diffusion of the fields ``f`` (checked), its assembly
-    (face fluxes, exits) and the diffusive z-face flux map ``Bz`` (or ``None``)."""
-    terms, n_bad = _diffusion.split_tensor(f, grid.dims)
-    axial = {}
-    for name in _AXES[grid.dims]:
-        off = tuple(1 if a == name else 0 for a in _AXES[grid.dims])
-        axial[name] = next((A for o, A in terms if o == off), np.zeros(grid.shape))
+    (face fluxes, exits) and the diffusive z-face flux map ``Bz`` (or ``None``).
+
+    ``parts``: ``(axial, L, Bz, n_bad)`` of the explicit scheme's operator
+    (``op.implicit_parts()``: on axisymmetric and hopper grids the exchanges of ``Q`` with
+    the metric and the walls, :mod:`._geometry`); ``f`` is then unused. Default: the
+    Cartesian box's, from ``f``."""
+    if parts is None:
+        terms, n_bad = _diffusion.split_tensor(f, grid.dims)
+        axial = {}
+        for name in _AXES[grid.dims]:
+            off = tuple(1 if a == name else 0 for a in _AXES[grid.dims])
+            axial[name] = next((A for o, A in terms if o == off), np.zeros(grid.shape))
+        L = _diffusion.operator(terms, grid.shape, grid.spacing)
+        Bz = _diffusion.vertical_flux_operator(terms, grid.shape, grid.spacing) \
+            if terms else None
+    else:
+        axial, L, Bz, n_bad = parts
     asm = _Assembly(grid, faces, axial, scheme)
-    A = (asm.matrix() + _diffusion.operator(terms, grid.shape, grid.spacing)).tocsc()
-    Bz = _diffusion.vertical_flux_operator(terms, grid.shape, grid.spacing) if terms else None
+    A = (asm.matrix() + L).tocsc()
     return A, asm, Bz, n_bad
 
 
@@ -225,9 +240,11 @@ class ImplicitStepper:
         return P
 
 
-def run(grid, f, P, outlet, interval, frames, tracker, *, tol, dt0):
+def run(grid, op, P, interval, frames, tracker, *, tol, dt0):
     """Step ``P`` through the frames with :class:`ImplicitStepper`; the frames go to
-    ``tracker`` (:class:`spotpde.tracer._stepping._FrameTracker`).
+    ``tracker`` (:class:`spotpde.tracer._stepping._FrameTracker`). ``op``: the explicit
+    scheme's operator (:class:`spotpde.tracer._operator._Operator` or the geometry's),
+    whose face velocities and :meth:`implicit_parts` make ``A``.
 
     Returns:
         ``(stepper, P_height_faces, budget, info)``: the stepper (statistics), the
@@ -235,8 +252,7 @@ def run(grid, f, P, outlet, interval, frames, tracker, *, tol, dt0):
         sides, top, and a dict of options for the result.
     """
     t0 = time.perf_counter()
-    A, asm, Bz, n_bad = build_operator(grid, f, _advection.face_velocities(f, grid.walls,
-                                                                          outlet))
+    A, asm, Bz, n_bad = build_operator(grid, None, op.faces, parts=op.implicit_parts())
     hv = grid.cell_volume
     shape = grid.shape
     stepper = ImplicitStepper(A, interval, tol, dt0, hv, tracker.mass0, float(P.max()))
@@ -263,12 +279,12 @@ def run(grid, f, P, outlet, interval, frames, tracker, *, tol, dt0):
     return stepper, -Fz, exits(), info
 
 
-def result(result_cls, grid, f, P, outlet, interval, frames, tracker, *, tol, dt0, rate,
-           umax):
+def result(result_cls, grid, op, P, interval, frames, tracker, *, tol, dt0):
     """:func:`run` packed as a :class:`spotpde.tracer.TracerResult` (``result_cls``);
-    ``rate`` and ``umax`` (the explicit positivity rate and the largest speed) give
+    the explicit positivity rate and the largest speed of ``op`` give
     ``max_cfl = max(dt) rate`` and ``max_courant``, here well above 1."""
-    stepper, faces, budget, info = run(grid, f, P, outlet, interval, frames, tracker,
+    rate, umax = op.rate_explicit, op.umax
+    stepper, faces, budget, info = run(grid, op, P, interval, frames, tracker,
                                        tol=tol, dt0=dt0)
     return tracker.result(result_cls, faces, budget, steps=stepper.steps,
                           max_cfl=stepper.max_dt * rate,
@@ -303,12 +319,13 @@ class ImexSplit:
     ``(I - tau A_I) P_new = P`` (an M-matrix: positive for every ``tau``), its time
     integral ``S`` kept for the fluxes (``P_height``, outflow)."""
 
-    def __init__(self, grid, f, faces_implicit, extrapolate=True, eps=0.0):
+    def __init__(self, grid, f, faces_implicit, extrapolate=True, eps=0.0, parts=None):
         self.extrapolate = extrapolate
         self.eps = eps
         self.tiny = 1e-85 * eps              # 1e-100 max(P0), as in the explicit kernels
         self.theta_min = 1.0
-        self.A, self.asm, self.Bz, self.n_bad = build_operator(grid, f, faces_implicit)
+        self.A, self.asm, self.Bz, self.n_bad = build_operator(grid, f, faces_implicit,
+                                                               parts=parts)
         self.fac = _Factors(self.A)
         self.S = np.zeros(self.A.shape[0])
         self.shape = grid.shape
@@ -384,7 +401,8 @@ def imex_result(result_cls, grid, f, P, outlet, interval, frames, tracker, *, op
         from ._multirate import FastBox
         box = FastBox(op, fi, fast, ws, scheme, cfl, float(P.max()))
         fi = {k: np.zeros_like(v) for k, v in fi.items()}
-    imp = ImexSplit(grid, f, fi, extrapolate, 1e-15 * float(P.max()))
+    imp = ImexSplit(grid, f, fi, extrapolate, 1e-15 * float(P.max()),
+                    parts=op.implicit_parts())
 
     def explicit_step(P, ops, dt, budget):
         if box is None:

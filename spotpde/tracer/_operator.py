@@ -168,6 +168,21 @@ class _Operator:
             self._Bz = _diffusion.vertical_flux_operator(self.terms, self.grid.shape, self.h)
         return self._Bz
 
+    def implicit_parts(self):
+        """``(axial, L, Bz, n_bad)`` of the long-run steppers' implicit operator
+        (:func:`._implicit.build_operator`): the axial exchange coefficient of each axis
+        (d**2 per unit time, keyed ``"z"``, [``"y"``,] ``"x"``: the hybrid weights), the
+        diffusion matrix :attr:`L`, its vertical flux map :attr:`Bz` (``None`` without
+        diffusion) and the count of cells whose tensor is not diagonally dominant. The
+        geometry operator (:class:`._geometry._GeometryOperator`) gives its own."""
+        names = ("z", "x") if self.dims == 2 else ("z", "y", "x")
+        axial = {}
+        for name in names:
+            off = tuple(1 if a == name else 0 for a in names)
+            axial[name] = next((A for o, A in self.terms if o == off),
+                               np.zeros(self.grid.shape))
+        return axial, self.L, (self.Bz if self.terms else None), self.n_bad
+
     def backward_euler(self, P: np.ndarray, tau: float):
         """Solve ``(I - tau L) P_new = P``; returns ``P_new`` and its upward face flux."""
         lu = self._lu.get(tau)

@@ -167,8 +167,8 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
             take more than ``AUTO_IMEX_STEPS`` steps and fewer than 1 % of the moving
             cells are 4 or more times faster than the rest (``split`` is then at most
             that ratio and at most ``MAX_AUTO_SPLIT``), else ``"explicit"``. All are
-            positive and conservative
-            (docs/long_runs.md).
+            positive and conservative, on every grid: axisymmetric and hopper grids
+            step the explicit scheme's operator of their geometry (docs/long_runs.md).
         tol: ``"implicit"``: local error per step, L1 relative to the initial mass, in
             (0, 1).
         split: ``"multirate"`` / ``"imex"``: ratio (>= 1) of the step to the explicit
@@ -196,10 +196,6 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
                         f"{', '.join(STEPPING_MODES)}")
     elif stepping in ("implicit", "imex", "multirate") and callable(fields):
         problems.append(f"stepping: {stepping!r} needs steady fields (a dict), got a callable")
-    elif stepping in ("implicit", "imex", "multirate") and \
-            not grid.geometry.supports("long-run stepping").ok:
-        problems.append(f"stepping: {stepping!r} "
-                        + grid.geometry.supports("long-run stepping").reason)
     if split is None:
         split = DEFAULT_SPLIT.get(stepping, DEFAULT_SPLIT["multirate"])
     if not (isinstance(split, (int, float)) and split >= 1):
@@ -238,9 +234,9 @@ def solve(grid: Grid, fields: Fields, P0: np.ndarray, t_end: float, frames: int,
     numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
     try:
         if _geometry.special(grid):     # rings or a staircase: Q = 2 pi r P on the twin
-            # the long-run schemes assemble the Cartesian operator: explicit stepping only
             return _geometry.solve(_solve, grid, fields, P, t_end, frames, progress, lim,
-                                   scheme, diffusion, cfl, outlet, check_mass, on_frame)
+                                   scheme, diffusion, cfl, outlet, check_mass, on_frame,
+                                   stepping, tol, split)
         return _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl,
                       outlet, check_mass, on_frame, stepping, tol, split)
     finally:
@@ -318,11 +314,10 @@ def _solve(grid, fields, P, t_end, frames, progress, lim, scheme, diffusion, cfl
     if stepping == "implicit":
         tracker = _FrameTracker(grid, P, t_end, frames, on_frame, progress, check_mass,
                                 every=1)
-        return _implicit.result(TracerResult, grid, f0, P, outlet, interval, frames,
-                                tracker, tol=tol, dt0=cfl / op0.rate_explicit,
-                                rate=op0.rate_explicit, umax=op0.umax)
+        return _implicit.result(TracerResult, grid, op0, P, interval, frames, tracker,
+                                tol=tol, dt0=cfl / op0.rate_explicit)
     if stepping in ("imex", "multirate"):
-        op = _Operator(grid, f0, lim.code, outlet, implicit=True, p_scale=p_scale)
+        op = make_op(grid, f0, lim.code, outlet, implicit=True, p_scale=p_scale)
         ws = _Workspace(grid, p_scale)
         tracker = _FrameTracker(grid, P, t_end, frames, on_frame, progress, check_mass,
                                 every=max(1, int(est_steps / split) // 200))

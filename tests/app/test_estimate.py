@@ -143,9 +143,9 @@ def test_choose_stepping_keeps_short_transient_and_even_runs_explicit():
     assert choose_stepping("imex", 3.0, faces, grid.spacing, 1) == ("imex", 3.0)
 
 
-def test_axisymmetric_runs_are_estimated_explicit():
-    """tracer.solve steps axisymmetric (and hopper) grids explicitly whatever the
-    stepping; the estimate must not price them as multirate."""
+def test_axisymmetric_runs_are_estimated_as_the_solver_steps_them(monkeypatch):
+    """tracer.solve takes the long-run steppers on axisymmetric grids too, by the box's
+    rule on the geometry's own face velocities; the estimate prices what it runs."""
     from spotpde.tracer import _solve
     grid = Grid(2, (0.0, 4.0), (0.0, 8.0), 0.25, coordinates="axisymmetric")
     from spotpde.tracer import _geometry, _implicit
@@ -155,13 +155,18 @@ def test_axisymmetric_runs_are_estimated_explicit():
     speed = 1.0 / (0.005 + r**2)                   # a point sink at the axis: fast cells
     fields = {"u_r": -speed * R / r + zero, "u_z": -speed * Z / r + zero,
               "D_rr": 0.01 + zero, "D_rz": zero, "D_zz": zero}
-    for stepping in ("auto", "multirate"):
-        est = estimate.tracer_steps(grid, fields, 1e6, 3, stepping=stepping)
-        assert est["stepping"] == "explicit"
-    # on a Cartesian box the same rates would make auto switch: long, uneven
-    assert _solve.AUTO_IMEX_STEPS < est["steps"]
     op = _geometry.operator(grid, _solve._check_fields(grid, fields, "fields"), 6,
                             np.ones(grid.shape[1:], bool), implicit=False)
-    assert _solve.choose_stepping("auto", None, op.faces, grid.spacing,
-                                  est["steps"])[0] == "multirate"
     assert _implicit.auto_split(op.faces, grid.spacing) > _implicit.MIN_SPLIT
+    for stepping in ("auto", "multirate"):
+        est = estimate.tracer_steps(grid, fields, 1e6, 3, stepping=stepping)
+        assert est["stepping"] == "multirate"
+    assert _solve.AUTO_IMEX_STEPS < est["steps"]
+    # a short run with the threshold lowered: the solver takes the estimated steps
+    monkeypatch.setattr(_solve, "AUTO_IMEX_STEPS", 10)
+    P0 = np.where((np.abs(R - 2.0) < 0.6) & (np.abs(Z - 6.0) < 0.6), 1.0, 0.0)
+    for stepping in ("auto", "multirate"):
+        est = estimate.tracer_steps(grid, fields, 2.0, 3, stepping=stepping)
+        res = tracer.solve(grid, fields, P0, 2.0, 3, stepping=stepping)
+        assert est["stepping"] == res.options["stepping"] == "multirate"
+        assert est["split"] == res.options["split"] and est["steps"] == res.steps
