@@ -39,6 +39,7 @@ from scipy.optimize import OptimizeWarning, curve_fit
 from . import _compare_geometry as _shape
 from ..fields import coefficients
 from ..density import kinematic, spot_density
+from .._figures import figure_format, prepare_matplotlib, save_figure
 from ..grid import Grid
 from ..parameters import RULE_RANGE
 
@@ -429,7 +430,6 @@ def plot_comparison(comparisons: Mapping[float, KinematicComparison], path=None)
     Returns:
         The matplotlib figure.
     """
-    from .._figures import figure_format, prepare_matplotlib, save_figure
 
     if path is not None:
         figure_format(path)          # an unsupported extension: refused before drawing

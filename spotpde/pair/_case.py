@@ -9,6 +9,10 @@ import math
 
 import numpy as np
 
+from ._solver import cage_breaking
+from ..errors import NumericalError
+from ..fields.kernels import Uniform
+
 
 def local_lengths(ds, x, z) -> dict:
     """Single-particle diffusion lengths per unit fall ``D_p^ab / |u_z|`` at ``(x, z)``.
@@ -20,7 +24,6 @@ def local_lengths(ds, x, z) -> dict:
     Raises:
         spotpde.NumericalError: the particles do not fall there (``u_z >= 0``).
     """
-    from ..errors import NumericalError
 
     h = "r" if "r" in ds.dims else "x"
     names = {"xx": f"D_{h}{h}", "xz": f"D_{h}z", "zz": "D_zz"}
@@ -52,7 +55,6 @@ def add_to_result(case, ds):
     ``pair_frame``, ``pair_Z``, ``pair_X``), attributes too (``pair_mean_fall``, ...).
     In a cylinder (``(pair.x, pair.z)`` is ``(r, z)``) the pair is 3D: :func:`_cylinder_pair`.
     """
-    from ..fields.kernels import Uniform
 
     p = case.pair
     b_p = local_lengths(ds, p.x, p.z)
@@ -75,7 +77,6 @@ def add_to_result(case, ds):
 
     b = at_point(case.spots.b)
     b_par = at_point(case.spots.b_par)
-    from ..pair import cage_breaking
 
     res = cage_breaking(kernel, b, rule=case.rule, b_par=b_par, diffusivity=diffusivity,
                         contact=p.contact, separation=p.separation, start=p.start,

@@ -24,8 +24,10 @@ import math
 
 import numpy as np
 from numba import njit
+from scipy.interpolate import RegularGridInterpolator
 
-from ..montecarlo import _mc_kernels as K
+from ..montecarlo import _mc_kernels as K, kernel_params
+
 
 
 @njit(cache=True)
@@ -160,7 +162,6 @@ def cage_breaking_mc(kernel, b, rule=0.5, *, contact=1.0, separation=2.0, start=
     Returns:
         ndarray of falls in d, shape ``(replicas,)``.
     """
-    from ..montecarlo import kernel_params
 
     if not separation > contact > 0:
         raise ValueError(f"separation must be > contact > 0, got {separation}, {contact}")
@@ -231,7 +232,6 @@ def probe_tensor(kernel, b, rule, X, Z, *, spots=100_000, seed=0, step=0.05,
         dict ``{"xx", "xz", "zz"}`` of arrays of shape ``(len(X),)`` and the same keys
         with suffix ``"_se"``.
     """
-    from ..montecarlo import kernel_params
 
     kp = kernel_params(kernel)
     X = np.atleast_1d(np.asarray(X, float))
@@ -258,7 +258,6 @@ def tabulated_tensor(table, radii, angles):
     in ``Z`` and ``B^xz`` has the sign of ``X Z``. Bilinear in ``(|r|, angle)``, ``|r|``
     clamped to the table.
     """
-    from scipy.interpolate import RegularGridInterpolator
 
     interp = {k: RegularGridInterpolator((radii, angles), np.asarray(table[k], float))
               for k in ("xx", "xz", "zz")}

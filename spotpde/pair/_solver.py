@@ -50,6 +50,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+import xarray as xr
 from scipy import integrate
 
 from ..errors import NumericalError
@@ -557,7 +558,6 @@ def cage_breaking(kernel, b, rule=0.5, b_par=0.0, diffusivity="passage", contact
 
 
 def _dataset(res, Bg, outside, attrs, prefix="", dims=2):
-    import xarray as xr
 
     L = "1"  # lengths are numbers of particle diameters (no UDUNITS 'd', a day)
     p = prefix

@@ -42,6 +42,8 @@ from . import _advection, _diffusion
 from ._extrapolation import Extrapolation
 from ._linsolve import factorize
 from ._steady import _AXES, _Assembly
+from ._multirate import FastBox
+from ._stepping import _FixedStepper, _rk_step
 from ..errors import NumericalError
 
 
@@ -391,14 +393,12 @@ def imex_result(result_cls, grid, f, P, outlet, interval, frames, tracker, *, op
     ``multirate``: the fast faces are sub-stepped explicitly on their box
     (:mod:`._multirate`) instead of implicitly; the implicit part is the diffusion.
     """
-    from ._stepping import _FixedStepper, _rk_step
     t0 = time.perf_counter()
     fast, fe, fi, op.rate = partition(op.faces, grid.spacing, split)
     op.faces = fe
     op.rate_adv = op.rate
     box = None
     if multirate and fast.any():
-        from ._multirate import FastBox
         box = FastBox(op, fi, fast, ws, scheme, cfl, float(P.max()))
         fi = {k: np.zeros_like(v) for k, v in fi.items()}
     imp = ImexSplit(grid, f, fi, extrapolate, 1e-15 * float(P.max()),

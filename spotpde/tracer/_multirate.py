@@ -25,6 +25,7 @@ import numpy as np
 
 from ._operator import _Workspace
 from ._advection import advective_rate
+from ._stepping import _rk_step
 
 HALO = 4
 
@@ -78,7 +79,6 @@ class FastBox:
 
     def advance(self, P, tau, budget):
         """Advance ``P`` (full grid, in place on the box) by ``tau`` along the fast faces."""
-        from ._stepping import _rk_step
         if self.rate == 0.0:
             return P
         m = max(1, math.ceil(tau * self.rate / self.cfl - 1e-9))

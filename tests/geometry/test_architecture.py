@@ -71,10 +71,9 @@ LAZY_INTERNAL = {
 }
 
 #: Left as they are: in-function imports in modules other branches are rewriting (the
-#: Monte Carlo, pair statistics, the implicit tracer, interacting spots, the comparison);
-#: moving them to the top is the follow-up once those land.
+#: Monte Carlo, interacting spots); moving them to the top is the follow-up once those
+#: land.
 KNOWN_LEFT = {
-    ("spotpde.analysis.comparison", "spotpde._figures"),
     ("spotpde.density.traffic", "spotpde._figures"),
     ("spotpde.density.traffic", "spotpde.fields.convolution"),
     ("spotpde.montecarlo._relax", "spotpde.montecarlo._relax3d"),
@@ -83,15 +82,6 @@ KNOWN_LEFT = {
     ("spotpde.montecarlo._simulate3d", "spotpde.montecarlo._simulate"),
     ("spotpde.montecarlo._simulate3d", "spotpde.montecarlo._particles"),
     ("spotpde.montecarlo.mcstats", "spotpde.tracer"),
-    ("spotpde.pair._case", "spotpde.errors"),
-    ("spotpde.pair._case", "spotpde.fields.kernels"),
-    ("spotpde.pair._case", "spotpde.pair"),
-    ("spotpde.pair._mc", "spotpde.montecarlo"),
-    ("spotpde.pair._mc", "scipy.interpolate"),
-    ("spotpde.pair._solver", "xarray"),
-    ("spotpde.tracer._implicit", "spotpde.tracer._stepping"),
-    ("spotpde.tracer._implicit", "spotpde.tracer._multirate"),
-    ("spotpde.tracer._multirate", "spotpde.tracer._stepping"),
 }
 
 
