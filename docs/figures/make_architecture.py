@@ -10,12 +10,14 @@ an arrow against the flow would be drawn red, and the script prints it.
     python docs/figures/make_architecture.py
 
 The picture is computed from the code, so it is redrawn, not edited, when the code
-changes; tests/geometry/test_architecture.py checks the same order without drawing.
+changes. The order of the stages is the one tests/geometry/test_architecture.py checks
+(its ``LAYERS``, read from there so the picture and the check cannot disagree).
 """
 
 from __future__ import annotations
 
 import ast
+import importlib.util
 from collections import defaultdict
 from pathlib import Path
 
@@ -30,30 +32,46 @@ PACKAGE = ROOT / "spotpde"
 
 #: (row, column, stage, what it holds); rows from the bottom (shared) to the top (app).
 LAYOUT = [
-    (0, 1, "core", "grid, parameters, errors\ngeometry: the silo's shape"),
-    (1, 0, "density", "stage 1: spot density rho_s,\norifice, Kinematic Model"),
-    (2, 0, "fields", "stage 2: kernels, u_p, D_p\n(FFT convolution)"),
+    (0, 1, "core", "grid, parameters, errors, figures\ngeometry: the silo's shape"),
+    (1, 0, "fields", "kernels, FFT convolution,\nstage 2: u_p, D_p"),
+    (2, 0, "density", "stage 1: spot density rho_s,\norifice, Kinematic Model"),
     (3, 0, "tracer", "stage 3: propagator P,\nP_height"),
-    (3, 1, "pair", "relative diffusion,\ncage breaking"),
     (3, 2, "montecarlo", "the discrete spot model,\npacking relaxation"),
-    (1, 3, "tracks", "data in: tracked grains"),
-    (4, 3, "observables", "the same observables from\ndata and from the model"),
-    (4, 1, "analysis", "Kinematic comparison,\nlayers, packing"),
-    (5, 3, "calibration", "spotpde.fit"),
-    (6, 1, "app", "case -> Dataset -> netCDF,\nfigures, CLI, sweeps"),
+    (4, 2, "pair", "relative diffusion,\ncage breaking"),
+    (4, 0, "analysis", "Kinematic comparison,\nlayers, packing"),
+    (5, 1, "app", "case -> Dataset -> netCDF,\nfigures, sweeps"),
+    (6, 3, "tracks", "data in: tracked grains"),
+    (7, 3, "observables", "the same observables from\ndata and from the model"),
+    (8, 2, "calibration", "spotpde.fit"),
+    (9, 1, "cli", "the spotpde command"),
 ]
-#: the order data flows in: a stage may import only stages before it
-ORDER = ["core", "density", "fields", "tracer", "montecarlo", "pair", "tracks",
-         "observables", "analysis", "calibration", "app"]
+
+
+def _layers() -> list[set[str]]:
+    """The architecture test's ``LAYERS`` (units in data-flow order)."""
+    path = ROOT / "tests" / "geometry" / "test_architecture.py"
+    spec = importlib.util.spec_from_file_location("_architecture", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.LAYERS
+
+
 #: top-level modules that belong to the shared core
 CORE = {"grid", "parameters", "errors", "geometry", "_cache", "_roundoff", "_version",
-        "kernels", "kinematic"}
+        "_figures", "kernels", "kinematic"}
+
+
+#: the command line's modules: the front end on top of everything
+FRONT = {("app", "cli.py"), ("app", "_cli_fit.py"), ("__main__.py",), ("app", "cli"),
+         ("app", "_cli_fit"), ("__main__",)}
 
 
 def stage_of(parts: tuple[str, ...]) -> str | None:
     """The stage of module ``spotpde.<parts>``."""
     if not parts:
         return None
+    if tuple(parts) in FRONT:
+        return "cli"
     head = parts[0].removesuffix(".py")
     return "core" if head in CORE else head
 
@@ -87,9 +105,11 @@ def imports() -> dict[tuple[str, str], int]:
 
 def main() -> None:
     where = {stage: (col, row) for row, col, stage, _ in LAYOUT}
-    rank = {stage: i for i, stage in enumerate(ORDER)}
+    layers = _layers()
+    unit_rank = {u: i for i, layer in enumerate(layers) for u in layer}
+    rank = {stage: unit_rank["grid" if stage == "core" else stage] for stage in where}
     edges = imports()
-    fig, ax = plt.subplots(figsize=(11, 9))
+    fig, ax = plt.subplots(figsize=(11, 12))
     for row, col, stage, text in LAYOUT:
         ax.add_patch(FancyBboxPatch((col * 3.0 - 1.25, row * 1.5 - 0.45), 2.5, 0.9,
                                     boxstyle="round,pad=0.05", fc="#eef3fb", ec="#34568b"))
@@ -116,7 +136,7 @@ def main() -> None:
                                      color="red" if up else "#555555",
                                      lw=0.6 + 0.25 * min(n, 8), alpha=0.8))
     ax.set_xlim(-1.6, 10.6)
-    ax.set_ylim(-0.8, 9.8)
+    ax.set_ylim(-0.8, 14.3)
     ax.set_axis_off()
     ax.set_title("spotpde: stages and the imports between them (arrow: imports)")
     out = ROOT / "docs" / "figures" / "architecture.png"
