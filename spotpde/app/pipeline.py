@@ -29,7 +29,7 @@ import contextlib
 import importlib
 import math
 import os
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import numpy as np
 import xarray as xr
@@ -142,9 +142,70 @@ def _check_arguments(case, path, progress, on_fields) -> None:
 def _run(case: Case, progress: Progress | None, open_frames=None,
          on_fields=None) -> xr.Dataset:
     """:func:`run` without the output file; ``open_frames()`` returns the tracer's
-    ``on_frame`` (called when the tracer stage starts), ``on_fields`` as in :func:`run`."""
-    grid, orifice, spots = case.grid, case.orifice, case.spots
+    ``on_frame`` (called when the tracer stage starts), ``on_fields`` as in :func:`run`.
 
+    The stages in order: the spot density (:func:`_density_stage`), the coefficient
+    fields, the Kinematic Model (:func:`_kinematic_stage`), the tracer
+    (:func:`_tracer_stage`), then the Dataset with its attributes (:func:`_attrs`),
+    interacting spots' frames and the pair's cage breaking."""
+    grid, spots = case.grid, case.spots
+    density = _density_stage(case, progress)
+    rho_s = clip_roundoff(density.rho_raw)
+
+    stage = _stage(progress, "particle fields") or _noop
+    stage(0.0)
+    # transient fronts with b_par = 0 leave dispersive undershoots of a few per cent in
+    # rho_s (BDF2, second-order upwind); a spot density cannot be negative, so the
+    # coefficient fields of a transient run use its positive part (rho_s is reported as
+    # solved)
+    transient = spots.mode == "transient"
+    fields = case_fields(case, np.maximum(rho_s, 0.0) if transient else rho_s)
+    if density.snap_times is None and case.model != "void":   # no more convolutions
+        importlib.import_module("spotpde.fields.coefficients").release_caches()
+    stage(1.0)
+    if on_fields is not None:
+        on_fields(fields)
+
+    v_kin = _kinematic_stage(case, density, progress)
+    out = {"rho_s": rho_s, "v_kin": v_kin, **fields}
+    times, steady_attrs = None, {}
+    if case.tracer is not None:
+        coefficients = (fields if density.snapshots is None else
+                        SnapshotFields(density.snap_times, density.snapshots,
+                                       lambda r: case_fields(case, r)))
+        tracer_out, times, steady_attrs = _tracer_stage(case, coefficients, progress,
+                                                        open_frames)
+        out.update(tracer_out)
+    for name, arr in out.items():
+        _check_finite(name, np.asarray(arr, dtype=float))
+    if grid.geometry.masked:     # cells outside the material are NaN in results
+        out = {name: _mask_outside(grid, np.asarray(arr, dtype=float))
+               for name, arr in out.items()}
+
+    ds = make_dataset(grid, out, times=times, attrs=_attrs(case, steady_attrs))
+    if density.interacting is not None:
+        ds = importlib.import_module("spotpde.density.traffic").add_outputs(
+            ds, case, density.interacting)
+    if case.pair is not None:     # cage breaking at a point (spotpde.pair)
+        ds = importlib.import_module("spotpde.pair").add_to_result(case, ds)
+    return ds
+
+
+class _Density(NamedTuple):
+    """The spot density stage's results: ``rho_raw`` (d^-dims, as solved, before round-off
+    clipping), the transient ``snapshots`` at ``snap_times`` (or None), and interacting
+    spots' frames and rates (or None)."""
+
+    rho_raw: np.ndarray
+    snapshots: object
+    snap_times: object
+    interacting: object
+
+
+def _density_stage(case: Case, progress: Progress | None) -> _Density:
+    """The spot density ``rho_s``: steady, transient (with the snapshots the tracer
+    needs), or interacting spots' last frame."""
+    grid, orifice, spots = case.grid, case.orifice, case.spots
     if progress is not None:     # the stage starts with loading its solver
         progress("spot density", 0.0)
     spot_density = importlib.import_module("spotpde.density.spot_density")
@@ -167,75 +228,65 @@ def _run(case: Case, progress: Progress | None, open_frames=None,
                                    progress=_stage(progress, "spot density"))
     rho_s = _check_shape(np.asarray(rho_s, dtype=float), grid)
     _check_finite("rho_s", rho_s)
-    rho_raw = rho_s
-    rho_s = clip_roundoff(rho_s)
+    return _Density(rho_s, snapshots, snap_times, interacting)
 
-    stage = _stage(progress, "particle fields") or _noop
-    stage(0.0)
-    V1 = float(case.kernel.V1)
-    V2 = V1 if case.model == "void" else float(case.kernel.V2)   # void: one particle a spot
-    # transient fronts with b_par = 0 leave dispersive undershoots of a few per cent in
-    # rho_s (BDF2, second-order upwind); a spot density cannot be negative, so the
-    # coefficient fields of a transient run use its positive part (rho_s is reported as
-    # solved)
-    transient = spots.mode == "transient"
-    fields = case_fields(case, np.maximum(rho_s, 0.0) if transient else rho_s)
-    if snap_times is None and case.model != "void":   # no more convolutions in this run
-        importlib.import_module("spotpde.fields.coefficients").release_caches()
-    stage(1.0)
-    if on_fields is not None:
-        on_fields(fields)
 
+def _kinematic_stage(case: Case, density: _Density, progress: Progress | None) -> np.ndarray:
+    """``v_kin`` (d per unit time, downward): the Kinematic Model for the mean ``b``,
+    scaled so its flux through every height is ``V1 Q0``; zero outside a hopper."""
+    grid, orifice, spots = case.grid, case.orifice, case.spots
     stage = _stage(progress, "kinematic model") or _noop
     stage(0.0)
     kinematic = importlib.import_module("spotpde.density.kinematic")
+    V1 = float(case.kernel.V1)
     b = float(np.mean(spots.b))
     q0 = orifice.rate_at(spots.t_end if spots.mode == "transient" else 0.0)
-    if (spots.mode == "steady" and snapshots is None and np.ndim(spots.b) == 0
+    if (spots.mode == "steady" and density.snapshots is None and np.ndim(spots.b) == 0
             and np.ndim(spots.b_par) == 0 and float(spots.b_par) == 0.0):
         # uniform b, b_par = 0: the kinematic equation dv/dz = b lap_perp v is the spot
         # flux's (v_s rho_s), the same solve from the same floor profile: scale it
-        v_kin = V1 * np.asarray(spots.drift, dtype=float) * rho_raw
+        v_kin = V1 * np.asarray(spots.drift, dtype=float) * density.rho_raw
     else:
         v_kin = np.asarray(kinematic.speed(grid, orifice, b), dtype=float) * V1 * q0
     stage(1.0)
+    return grid.geometry.restrict(v_kin)     # nothing moves outside a hopper's walls
 
-    v_kin = grid.geometry.restrict(v_kin)     # nothing moves outside a hopper's walls
-    out = {"rho_s": rho_s, "v_kin": v_kin, **fields}
-    times = None
-    steady_attrs = {}
-    if case.tracer is not None:
-        tracer = importlib.import_module("spotpde.tracer")
-        P0 = initial_density(grid, case.tracer.start)
-        coefficients = (fields if snapshots is None else
-                        SnapshotFields(snap_times, snapshots, lambda r: case_fields(case, r)))
-    if case.tracer is not None and math.isinf(case.tracer.t_end):
-        # t_end = inf: the geometrical propagator by one steady solve (docs/steady.md)
+
+def _tracer_stage(case: Case, coefficients, progress: Progress | None, open_frames):
+    """The tracer: one steady solve for ``t_end = inf`` (``P_height``, ``residence`` and
+    the exit statistics as attributes, docs/steady.md), else time stepping (frames of
+    ``P`` or streamed to ``open_frames()``, ``P_height``, ``mass``, ``outflow``).
+    Returns ``(variables, times or None, attributes)``."""
+    grid = case.grid
+    tracer = importlib.import_module("spotpde.tracer")
+    P0 = initial_density(grid, case.tracer.start)
+    if math.isinf(case.tracer.t_end):
         stage = _stage(progress, "tracer") or _noop
         stage(0.0)
         res = tracer.solve_steady(grid, coefficients, P0,
                                   scheme=case.tracer_options.get("limiter", "weno5"))
         stage(1.0)
-        out.update(P_height=res.P_height, residence=res.residence)
-        steady_attrs = {f"exit_{k}": float(v) for k, v in res.exit.items()}
-        steady_attrs.update(mean_exit_time=float(res.mean_exit_time),
-                            steady_scheme=res.options["scheme"],
-                            steady_residual=float(res.residual))
-    elif case.tracer is not None:
-        on_frame = open_frames() if open_frames is not None else None
-        res = tracer.solve(grid, coefficients, P0, case.tracer.t_end, case.tracer.frames,
-                           progress=_stage(progress, "tracer"),
-                           on_frame=_outside_as_nan(grid, on_frame), **case.tracer_options)
-        times = np.asarray(res.times, dtype=float)
-        out.update(P_height=res.P_height, mass=res.mass, outflow=res.outflow)
-        if res.P is not None:      # None: the frames went to on_frame
-            out["P"] = res.P
-    for name, arr in out.items():
-        _check_finite(name, np.asarray(arr, dtype=float))
-    if grid.geometry.masked:     # cells outside the material are NaN in results
-        out = {name: _mask_outside(grid, np.asarray(arr, dtype=float))
-               for name, arr in out.items()}
+        attrs = {f"exit_{k}": float(v) for k, v in res.exit.items()}
+        attrs.update(mean_exit_time=float(res.mean_exit_time),
+                     steady_scheme=res.options["scheme"],
+                     steady_residual=float(res.residual))
+        return {"P_height": res.P_height, "residence": res.residence}, None, attrs
+    on_frame = open_frames() if open_frames is not None else None
+    res = tracer.solve(grid, coefficients, P0, case.tracer.t_end, case.tracer.frames,
+                       progress=_stage(progress, "tracer"),
+                       on_frame=_outside_as_nan(grid, on_frame), **case.tracer_options)
+    out = {"P_height": res.P_height, "mass": res.mass, "outflow": res.outflow}
+    if res.P is not None:      # None: the frames went to on_frame
+        out["P"] = res.P
+    return out, np.asarray(res.times, dtype=float), {}
 
+
+def _attrs(case: Case, steady_attrs: dict) -> dict:
+    """The result's global attributes: ``V1``, ``V2`` (d^dims), the rule, the models,
+    the geometry, the version, the case as TOML text and the CF attributes."""
+    grid = case.grid
+    V1 = float(case.kernel.V1)
+    V2 = V1 if case.model == "void" else float(case.kernel.V2)   # void: one particle a spot
     attrs = {
         "title": "spotpde result: spot model of granular drainage (Bazant 2004)",
         "V1": V1,
@@ -254,12 +305,7 @@ def _run(case: Case, progress: Progress | None, open_frames=None,
     if case.source is not None:
         attrs["case_file"] = str(case.source)
     attrs.update(cf_attrs(case))   # Conventions, history, source, references, scales
-    ds = make_dataset(grid, out, times=times, attrs=attrs)
-    if interacting is not None:
-        ds = importlib.import_module("spotpde.density.traffic").add_outputs(ds, case, interacting)
-    if case.pair is not None:     # cage breaking at a point (spotpde.pair)
-        ds = importlib.import_module("spotpde.pair").add_to_result(case, ds)
-    return ds
+    return attrs
 
 
 def case_fields(case: Case, rho_s: np.ndarray) -> dict[str, np.ndarray]:
