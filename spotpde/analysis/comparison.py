@@ -355,41 +355,15 @@ def compare_with_kinematic(case_or_parts, rule: float | None = None, *, z_min: f
     speed_l2 = _norm_rows(v_spot - v_kin, w) / _norm_rows(v_kin, w)
     horizontal_l2 = _norm_rows(ux_spot - ux_kin, w) / _norm_rows(ux_kin, w)
     b_h = np.sum(w * ux_spot * dx_v_spot, axis=-1) / np.sum(w * dx_v_spot**2, axis=-1)
-    # s(z) of the Kinematic Model with this orifice and these walls fitted to each profile
-    # (a Gaussian's width is biased by the walls and the slot); b = ds/dz
-    if inside is not None:          # no closed form between a hopper's walls
-        w2_spot = w2_kin = np.full(rows.size, np.nan)
-    elif grid.dims == 2:
-        fit = kinematic.fit_radial_profile if curved else kinematic.fit_profile
-        walled = [[fit(grid.x[cols], p, orifice, grid.x_range, grid.walls)[0]
-                   for p in prof] for prof in (v_spot, v_kin)]
-        w2_spot, w2_kin = (2.0 * np.asarray(sv) for sv in walled)
-    else:
-        w2_spot = np.array([gaussian_width2(grid.x[cols], p) for p in v_spot])
-        w2_kin = np.array([gaussian_width2(grid.x[cols], p) for p in v_kin])
+    w2_spot, w2_kin = _profile_widths(grid, orifice, cols, (v_spot, v_kin), inside)
     zc = grid.z[rows]
     b_spot = 0.5 * np.gradient(w2_spot, zc)
     b_kin = 0.5 * np.gradient(w2_kin, zc)
 
-    # streamlines of both flows from the same starts, by the same integrator
     start_height = z0 + 0.9 * (z1 - z0) if start_height is None else float(start_height)
     shift_height = z0 + 0.25 * (z1 - z0) if shift_height is None else float(shift_height)
-    xc = orifice.x
-    half = 0.25 * (x1 - x0)
-    xs = _shape.streamline_starts(grid, np.linspace(max(x0 + h, xc - half),
-                                                    min(x1 - h, xc + half), n_streamlines),
-                                  start_height, xc)
-    if grid.dims == 2:
-        starts = np.column_stack([xs, np.full_like(xs, start_height)])
-    else:
-        starts = np.column_stack([xs, np.full_like(xs, grid.y[yi]), np.full_like(xs, start_height)])
-    if n_streamlines > 0:
-        paths_spot = kinematic.streamlines(flow, grid, starts)
-        paths_kin = kinematic.streamlines(kin, grid, starts)
-        shift = np.array([abs(_path_x_at(p, shift_height) - _path_x_at(q, shift_height))
-                          for p, q in zip(paths_spot, paths_kin)])
-    else:
-        paths_spot, paths_kin, shift = [], [], np.zeros(0)
+    starts, paths_spot, paths_kin, shift = _streamlines(
+        grid, orifice, (flow, kin), yi, n_streamlines, start_height, shift_height)
 
     return KinematicComparison(
         rule=lam, b=b, V1=V1, V2=V2, z=zc, speed_l2=speed_l2, width2_spot=w2_spot,
@@ -398,6 +372,52 @@ def compare_with_kinematic(case_or_parts, rule: float | None = None, *, z_min: f
         streamlines_spot=paths_spot,
         streamlines_kin=paths_kin, streamline_shift=shift, shift_height=shift_height,
         horizontal="r" if curved else "x")
+
+
+def _profile_widths(grid, orifice, cols, profiles, inside):
+    """``(s**2 of the spot flow, s**2 of the Kinematic Model)`` at each compared height:
+    the Kinematic Model's profile for this orifice and these walls fitted to each
+    downward-speed profile (a plain Gaussian's width would be biased by the walls and
+    the slot; ``b = d(s**2 / 2)/dz``); radial in a cylinder, Gaussian in 3D, NaN in a
+    hopper (``inside`` given: no closed form between its walls)."""
+    v_spot, v_kin = profiles
+    if inside is not None:
+        nan = np.full(len(v_spot), np.nan)
+        return nan, nan.copy()
+    if grid.dims == 2:
+        fit = kinematic.fit_radial_profile if grid.geometry.curved else kinematic.fit_profile
+        walled = [[fit(grid.x[cols], p, orifice, grid.x_range, grid.walls)[0]
+                   for p in prof] for prof in (v_spot, v_kin)]
+        return tuple(2.0 * np.asarray(sv) for sv in walled)
+    return (np.array([gaussian_width2(grid.x[cols], p) for p in v_spot]),
+            np.array([gaussian_width2(grid.x[cols], p) for p in v_kin]))
+
+
+def _streamlines(grid, orifice, flows, yi, n, start_height, shift_height):
+    """Streamlines of both flows (spot, kinematic) from the same ``n`` starts spread over
+    the middle half of the width at ``start_height`` (d), by the same integrator, and
+    their horizontal distance at ``shift_height`` (d). Returns ``(starts, spot paths,
+    kinematic paths, shifts)``."""
+    flow, kin = flows
+    h = grid.spacing
+    x0, x1 = grid.x_range
+    xc = orifice.x
+    half = 0.25 * (x1 - x0)
+    xs = _shape.streamline_starts(grid, np.linspace(max(x0 + h, xc - half),
+                                                    min(x1 - h, xc + half), n),
+                                  start_height, xc)
+    if grid.dims == 2:
+        starts = np.column_stack([xs, np.full_like(xs, start_height)])
+    else:
+        starts = np.column_stack([xs, np.full_like(xs, grid.y[yi]),
+                                  np.full_like(xs, start_height)])
+    if n <= 0:
+        return starts, [], [], np.zeros(0)
+    paths_spot = kinematic.streamlines(flow, grid, starts)
+    paths_kin = kinematic.streamlines(kin, grid, starts)
+    shift = np.array([abs(_path_x_at(p, shift_height) - _path_x_at(q, shift_height))
+                      for p, q in zip(paths_spot, paths_kin)])
+    return starts, paths_spot, paths_kin, shift
 
 
 
