@@ -49,8 +49,10 @@ def test_spot_number_changes_only_by_inflow_minus_outflow(kind):
     o = Orifice(x=0.0, width=W, rate=3.0)
     times = np.linspace(0.0, 6.0, 7)
     active = np.asarray(g.active)
-    for drift in (drop, 1.0):
-        s = Spots(drift=drift, b=0.6, b_par=0.3, rho_max=rho_max, mode="transient", t_end=6.0)
+    for drift, flux, scaling in ((drop, "greenshields", "fixed"), (1.0, "triangular", "speed"),
+                                 (1.0, "greenshields", "fixed")):
+        s = Spots(drift=drift, b=0.6, b_par=0.3, rho_max=rho_max, mode="transient", t_end=6.0,
+                  flux=flux, diffusion_scaling=scaling)
         res = traffic.transient(g, o, s, 6.0, times, rho0=rho0, full_output=True)
         frames = res["frames"]
         mass = (frames * volumes(g)).sum(axis=(1, 2))
@@ -60,7 +62,25 @@ def test_spot_number_changes_only_by_inflow_minus_outflow(kind):
         assert np.abs(budget).max() < 1e-13 * mass.max()
         assert res["requested_total"][-1] > 1.5 * res["injected_total"][-1]   # capped
         assert frames.min() >= 0.0 and np.all(frames[:, ~active] == 0.0)
-    assert frames.max() <= rho_max * (1 + 1e-12)
+        if drift is not drop:
+            assert frames.max() <= rho_max * (1 + 1e-12)
+
+
+@pytest.mark.parametrize("hopper", [None, Hopper(30.0, 0.0, W / 2)])
+def test_open_cylinder_wall_pads_outward_only(hopper):
+    """An open wall: the window of a wider reflecting silo (padded from r = a outward,
+    never across the axis), equal to that silo's solve cropped."""
+    h, a = 0.25, 3.0
+    s = Spots(b=0.6, b_par=0.3, rho_max=0.4, mode="transient", t_end=4.0)
+    o = Orifice(x=0.0, width=W, rate=0.3)
+    g = Grid(2, (0, a), (0, 6.0), h, "open", coordinates="axisymmetric", hopper=hopper)
+    p = int(np.ceil(6.0 * np.sqrt(0.6 * 6.0) / h))
+    wide = Grid(2, (0, a + p * h), (0, 6.0), h, "reflecting", coordinates="axisymmetric",
+                hopper=hopper)
+    rho = traffic.transient(g, o, s, 4.0)
+    ref = traffic.transient(wide, o, s, 4.0)[:, :g.nx]
+    np.testing.assert_allclose(rho, ref, rtol=0, atol=1e-15 * ref.max())
+    assert rho[:, -1].max() > 1e-3 * rho.max()          # spots do reach the open wall
 
 
 # -- the dilute limit ----------------------------------------------------------------------
@@ -158,6 +178,53 @@ def test_regular_at_the_axis(cylinder_runs):
 
 
 # -- cases and outputs ----------------------------------------------------------------------
+CONE_CASE = """
+[domain]
+dims = 2
+coordinates = "axisymmetric"
+x = [0.0, 4.0]
+z = [0.0, 8.0]
+spacing = 0.5
+hopper_angle = 30.0
+[orifice]
+x = 0.0
+width = 2.0
+rate = 0.2
+[spots]
+mode = "transient"
+t_end = 4.0
+rho_max = 0.1
+frames = 3
+[kernel]
+shape = "uniform"
+size = 1.0
+height = 0.01
+[tracer]
+layers = { spacing = 2.0 }
+t_end = 4.0
+frames = 3
+[output]
+path = "cone.nc"
+"""
+
+
+def test_a_cone_case_with_rho_max_runs_end_to_end(tmp_path, monkeypatch):
+    """Was refused at validation (spots.rho_max: "interacting spots are solved in
+    Cartesian coordinates only"); now the CLI runs it, tracer included, and the result
+    carries the interacting-spot outputs with a round-off budget."""
+    import xarray as xr
+
+    from spotpde.app import cli
+
+    (tmp_path / "cone.toml").write_text(CONE_CASE)
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["run", "cone.toml", "-q"]) == 0
+    with xr.open_dataset(tmp_path / "cone.nc") as ds:
+        assert {"rho_s_t", "free_volume_t", "spot_mass"} <= set(ds.data_vars)
+        assert abs(ds.attrs["mass_budget_error"]) < 1e-13 * float(ds["spot_mass"].max())
+        assert ds.attrs["injected_total"] > 0
+
+
 def test_a_cylinder_case_with_rho_max_is_valid_and_runs(tmp_path):
     """Was refused ("interacting spots are solved in Cartesian coordinates only")."""
     case = load_case({
