@@ -83,6 +83,24 @@ def test_open_cylinder_wall_pads_outward_only(hopper):
     assert rho[:, -1].max() > 1e-3 * rho.max()          # spots do reach the open wall
 
 
+def test_the_metric_solver_on_a_plain_box_is_the_box_solver():
+    """Nothing in the metric path is special to rings or hoppers: given a box it
+    reproduces the box solver (its numba kernels) to round-off."""
+    from spotpde.density import _traffic, _traffic_metric
+    from spotpde.density.orifice import source_profile
+
+    g = Grid(2, (-3, 3), (0, 6), 0.25, "reflecting")
+    o = Orifice(x=0.0, width=W, rate=3.0)
+    s = Spots(b=0.6, b_par=0.3, rho_max=0.4, diffusion_scaling="speed")
+    rho0 = 0.4 * np.random.default_rng(5).random(g.shape)
+    profile = source_profile(g, o)
+    solver = _traffic_metric.MetricSolver(g, 1.0, 0.6, 0.3, 0.4, _traffic.FLUXES["greenshields"],
+                                          "speed", "mc", lambda t: 3.0 * profile)
+    res = _traffic.integrate(solver, 4.0, np.array([4.0]), lambda t: 3.0, rho0=rho0)
+    box = traffic.transient(g, o, s, 4.0, rho0=rho0)
+    np.testing.assert_allclose(res["frames"][-1], box, rtol=0, atol=1e-13)
+
+
 # -- the dilute limit ----------------------------------------------------------------------
 @pytest.mark.parametrize("kind", ["cylinder", "wedge", "cone"])
 def test_dilute_limit_converges_to_the_independent_spot_solver(kind):
@@ -223,6 +241,11 @@ def test_a_cone_case_with_rho_max_runs_end_to_end(tmp_path, monkeypatch):
         assert {"rho_s_t", "free_volume_t", "spot_mass"} <= set(ds.data_vars)
         assert abs(ds.attrs["mass_budget_error"]) < 1e-13 * float(ds["spot_mass"].max())
         assert ds.attrs["injected_total"] > 0
+        # the space-time diagram runs along the axis (was a KeyError: no "x" in the result)
+        st = traffic.space_time(ds, "rho_s_t")
+        assert st.dims == ("t_s", "z")
+        np.testing.assert_array_equal(st.values, ds["rho_s_t"].values[:, :, 0])
+        assert traffic.space_time(ds, "rho_s_t", z=3.0).dims == ("t_s", "r")
 
 
 def test_a_cylinder_case_with_rho_max_is_valid_and_runs(tmp_path):

@@ -293,7 +293,8 @@ def space_time(ds, variable: str = "free_volume_t", x: float | None = None,
 
     Default: ``(t_s, z)`` along the vertical line at ``x`` (3D: and the middle of ``y``),
     ``x`` defaulting to the middle of the domain (the axis). With ``z``: ``(t_s, x)``
-    across the silo at the height nearest ``z`` (3D: the middle of ``y``).
+    across the silo at the height nearest ``z`` (3D: the middle of ``y``). Axisymmetric
+    results (dimension ``r``): ``x`` is the radius, default the axis ``r = 0``.
     """
     if variable not in ds:
         raise ValueError(f"variable: {variable!r} is not in the Dataset (an interacting-spot "
@@ -304,9 +305,10 @@ def space_time(ds, variable: str = "free_volume_t", x: float | None = None,
         if "y" in da.dims:
             da = da.isel(y=da.sizes["y"] // 2)
         return da
-    xs = ds["x"].values
-    x0 = 0.5 * (xs[0] + xs[-1]) if x is None else float(x)
-    da = da.sel(x=x0, method="nearest")
+    across = "r" if "r" in da.dims else "x"
+    xs = ds[across].values
+    x0 = (0.0 if across == "r" else 0.5 * (xs[0] + xs[-1])) if x is None else float(x)
+    da = da.sel({across: x0}, method="nearest")
     if "y" in da.dims:
         da = da.isel(y=da.sizes["y"] // 2)
     return da
