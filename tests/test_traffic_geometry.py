@@ -137,7 +137,8 @@ def test_whole_floor_orifice_in_a_cylinder_is_the_riemann_problem(rho_L, rho_R):
         assert np.abs(rho - rho[:, :1]).max() < 1e-14
         box = Grid(2, (-a, a), (0, H), h, "reflecting")
         rb = traffic.transient(box, Orifice(x=0.0, width=2 * a, rate=q_L * 2 * a), s, t,
-                               rho0=np.where(box.z[:, None] < z0, rho_L, rho_R) * np.ones(box.shape))
+                               rho0=np.where(box.z[:, None] < z0, rho_L, rho_R)
+                               * np.ones(box.shape))
         np.testing.assert_allclose(rho[:, 0], rb[:, 0], rtol=0, atol=1e-13)
         exact = traffic.riemann(rho_L, rho_R, g.z - z0, t)
         errors.append(float(np.sum(np.abs(rho[:, 0] - exact)) * h))

@@ -389,7 +389,9 @@ class Solver:
 
     def initial(self, rho0):
         """The starting density: ``rho0`` (grid shape) or 0."""
-        return np.zeros(self.shape) if rho0 is None else np.array(rho0, dtype=float).reshape(self.shape)
+        if rho0 is None:
+            return np.zeros(self.shape)
+        return np.array(rho0, dtype=float).reshape(self.shape)
 
     def max_dt(self, cfl: float = 0.9) -> float:
         """Largest stable, bound-preserving step (module docstring)."""

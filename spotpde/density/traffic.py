@@ -58,7 +58,8 @@ def transient(grid: Grid, orifice: Orifice, spots: Spots, t_end: float, times=No
     """Time-dependent interacting spot density from an empty silo (or ``rho0``).
 
     Args:
-        grid: the grid (reflecting walls; open walls are solved on a padded window).
+        grid: the grid: a box, a cylinder (rings, ``rho`` per d**3) or a hopper (the
+            staircase); reflecting walls, open walls solved on a padded window.
         orifice: the source; ``rate`` a constant or a callable ``Q0(t)`` (spots/time).
         spots: ``drift`` v_s, ``b``, ``b_par`` (floats or grid arrays), ``rho_max`` (> 0,
             spots per d**dims; ``None`` or ``inf``: independent spots), ``flux``,
