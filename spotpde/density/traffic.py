@@ -40,6 +40,7 @@ import numpy as np
 from . import _geometry, _traffic, _traffic_metric
 from ._spots import _pad, check_spots, pad_cells
 from ._traffic import FLUXES, FluxShape, flux_from_name
+from ..fields import _rings
 from ..grid import Grid
 from .orifice import check_orifice, source_profile
 from ..parameters import Orifice, Spots
@@ -153,8 +154,6 @@ def free_volume(grid: Grid, rho_s: np.ndarray, kernel) -> np.ndarray:
         raise ValueError(f"rho_s: must have the grid shape {grid.shape} (or frames of it), "
                          f"got {rho.shape}")
     if grid.geometry.curved:
-        from ..fields import _rings
-
         W = _rings.ring_weights(kernel, grid.spacing, grid.nx, 1, 0)
         frames = rho.reshape((-1,) + grid.shape)
         return np.stack(_rings.ring_convolve(list(frames), W)).reshape(rho.shape)
