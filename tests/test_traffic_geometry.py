@@ -101,6 +101,24 @@ def test_the_metric_solver_on_a_plain_box_is_the_box_solver():
     np.testing.assert_allclose(res["frames"][-1], box, rtol=0, atol=1e-13)
 
 
+@pytest.mark.parametrize("kind", ["cylinder", "wedge", "cone"])
+def test_an_overfull_orifice_injects_the_capacity_of_its_area(kind):
+    """Asked for 3 q_max A (A: the disk pi (W/2)**2 or the slot W), an empty silo takes
+    exactly q_max A: the bottom cells stay at or below rho_c, whose supply is q_max per
+    unit area; the refused 2 q_max A t is reported."""
+    g = shape(kind, 0.25)
+    area = np.pi * (W / 2) ** 2 if g.geometry.curved else W
+    rho_max = 0.4
+    q_max = rho_max / 4
+    times = np.linspace(0.0, 4.0, 5)
+    res = traffic.transient(g, Orifice(x=0.0, width=W, rate=3 * q_max * area),
+                            Spots(b=0.6, b_par=0.0, rho_max=rho_max), 4.0, times,
+                            full_output=True)
+    np.testing.assert_allclose(res["injected"], q_max * area, rtol=1e-12)
+    refused = res["requested_total"] - res["injected_total"]
+    np.testing.assert_allclose(refused, 2 * q_max * area * times, rtol=1e-12, atol=1e-12)
+
+
 # -- the dilute limit ----------------------------------------------------------------------
 @pytest.mark.parametrize("kind", ["cylinder", "wedge", "cone"])
 def test_dilute_limit_converges_to_the_independent_spot_solver(kind):
