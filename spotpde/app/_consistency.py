@@ -21,7 +21,7 @@ validator of :mod:`._schema`, each naming the key to change:
 * ``[pair]``: a 2D domain, the point inside it and inside a hopper's walls (in the
   material), in a cylinder a start at a horizontal distance ``pair.start.x >= 0``;
 * axisymmetric coordinates: ``dims = 2``, ``domain.x = [0, a]`` (the radius), the
-  orifice on the axis (``orifice.x = 0``), no interacting spots;
+  orifice on the axis (``orifice.x = 0``);
 * a hopper (``domain.hopper_angle``): a 2D or axisymmetric domain, a uniform orifice
   (its edges are where the walls start), and walls that leave the floor open (a
   vertical hopper needs an orifice of width > 0).
@@ -256,9 +256,6 @@ def _check_geometry(v: _Validator, data: dict) -> None:
             v.bad("orifice.x", 'must be 0 with domain.coordinates = "axisymmetric" '
                   "(the orifice is centred on the axis; orifice.width is its diameter)",
                   o["x"])
-        if "rho_max" in s:
-            v.bad("spots.rho_max", "interacting spots are solved in Cartesian "
-                  'coordinates only; use domain.coordinates = "cartesian"', s["rho_max"])
     if "hopper_angle" not in d:
         return
     angle = d["hopper_angle"]

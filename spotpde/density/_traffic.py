@@ -49,7 +49,9 @@ Boundaries (the paper gives none; docs/interacting_spots.md):
   (``requested`` and ``injected`` rates), never lost silently. No diffusive flux.
 * top: a free exit into empty material: the outside supplies ``q_max``, so the flux out
   is the top cell's demand ``Dem(rho[-1])``. No diffusive flux (Danckwerts).
-* side walls: reflecting (zero flux); open walls are solved on a padded window by the
+* side walls: reflecting (zero flux); cylinders and hoppers: the ring measures and the
+  staircase's closed faces of :mod:`spotpde.density._traffic_metric`; open walls are
+  solved on a padded window by the
   caller, as for the linear solver.
 
 Mass: ``sum(rho) h**dims`` changes by exactly ``dt * (injected - outflow)`` of each
@@ -381,6 +383,16 @@ class Solver:
         outflow = float(F[-1].sum()) * self.area
         return out, inj, outflow
 
+    def mass(self, rho: np.ndarray) -> float:
+        """Spots in the silo, ``sum(rho) h**dims``."""
+        return rho.sum() * self.h ** len(self.shape)
+
+    def initial(self, rho0):
+        """The starting density: ``rho0`` (grid shape) or 0."""
+        if rho0 is None:
+            return np.zeros(self.shape)
+        return np.array(rho0, dtype=float).reshape(self.shape)
+
     def max_dt(self, cfl: float = 0.9) -> float:
         """Largest stable, bound-preserving step (module docstring)."""
         L = float(np.max(self.v)) * (self.flux.slope_max if np.isfinite(self.rho_max) else 1.0)
@@ -410,7 +422,7 @@ def integrate(solver: Solver, t_end: float, times: np.ndarray, rate: Callable[[f
         dict: ``frames`` ``(len(times),) + shape``; per frame ``injected``, ``requested``
         and ``outflow`` rates (spots per unit time, from the frame's state); running
         totals ``injected_total``, ``requested_total``, ``outflow_total`` (time integrals
-        to each frame, Heun weights) and ``mass`` (``sum(rho) h**dims``); ``dt``, ``steps``.
+        to each frame, Heun weights) and ``mass`` (:meth:`Solver.mass`); ``dt``, ``steps``.
     """
     shape = solver.shape
     if not 0 < cfl <= 1:
@@ -419,8 +431,7 @@ def integrate(solver: Solver, t_end: float, times: np.ndarray, rate: Callable[[f
     if not 0 < dt_max <= solver.max_dt(1.0) * (1 + 1e-12):
         raise ValueError(f"dt: must be in (0, {solver.max_dt(1.0):.6g}], the explicit "
                          f"bound-preserving step, got {dt!r}")
-    rho = np.zeros(shape) if rho0 is None else np.array(rho0, dtype=float).reshape(shape)
-    cell = solver.h ** len(shape)
+    rho = solver.initial(rho0)
     # a uniform step that does not depend on the frame times: the state at t_end is the
     # same whichever frames are asked for; frames between steps are linear interpolants
     # (second order; convex combinations, so the bounds and the budget hold for them)
@@ -446,7 +457,7 @@ def integrate(solver: Solver, t_end: float, times: np.ndarray, rate: Callable[[f
             res["requested"][j] = rate(times[j])
             tot = (1.0 - w) * tot_old + w * tot_new
             res["injected_total"][j], res["requested_total"][j], res["outflow_total"][j] = tot
-            res["mass"][j] = r.sum() * cell
+            res["mass"][j] = solver.mass(r)
             j += 1
 
     record(0.0, rho, totals, 0.0, rho, totals)

@@ -154,7 +154,8 @@ def transient(grid: Grid, orifice: Orifice, spots: Spots, t_end: float, times=No
             ``"py-pde"`` (py-pde's adaptive explicit Runge-Kutta on the same operator,
             :mod:`._pde`; small grids only, a cross-check; ``dt`` is ignored). On
             axisymmetric and hopper grids both run on the metric / staircase operator
-            (``_geometry``); interacting spots (``rho_max``) refuse those grids.
+            (``_geometry``); interacting spots (``rho_max``) use the same measures
+            and staircase (``_traffic_metric``).
 
     Returns:
         ``times is None``: ``rho_s`` at ``t_end`` (grid shape). Otherwise an array

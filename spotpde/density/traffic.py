@@ -21,7 +21,9 @@ d**dims, ``v_s`` d per unit time, ``q`` spots per d**(dims-1) per unit time.
 
 The orifice injects ``min(Q0(t) s(x), Sup(rho_bottom))`` (the bottom cell's supply); the
 refused part is reported. Only transient runs: a steady case with ``rho_max`` is a
-:class:`~spotpde.CaseError` (docs/interacting_spots.md).
+:class:`~spotpde.CaseError` (docs/interacting_spots.md). Cylinders and hoppers: the same
+law on the geometry's ring volumes, face areas and staircase
+(:mod:`spotpde.density._traffic_metric`); ``rho`` is then per d**3 on rings.
 
 ``free_volume``: the free-volume fraction a particle at ``r`` sees,
 ``phi_f(r) = (w * rho_s)(r) = integral w(r - r_s) rho_s(r_s) dr_s`` (the kernel ``w`` is
@@ -35,9 +37,10 @@ import dataclasses
 
 import numpy as np
 
-from . import _traffic
+from . import _geometry, _traffic, _traffic_metric
 from ._spots import _pad, check_spots, pad_cells
 from ._traffic import FLUXES, FluxShape, flux_from_name
+from ..fields import _rings
 from ..grid import Grid
 from .orifice import check_orifice, source_profile
 from ..parameters import Orifice, Spots
@@ -56,7 +59,8 @@ def transient(grid: Grid, orifice: Orifice, spots: Spots, t_end: float, times=No
     """Time-dependent interacting spot density from an empty silo (or ``rho0``).
 
     Args:
-        grid: the grid (reflecting walls; open walls are solved on a padded window).
+        grid: the grid: a box, a cylinder (rings, ``rho`` per d**3) or a hopper (the
+            staircase); reflecting walls, open walls solved on a padded window.
         orifice: the source; ``rate`` a constant or a callable ``Q0(t)`` (spots/time).
         spots: ``drift`` v_s, ``b``, ``b_par`` (floats or grid arrays), ``rho_max`` (> 0,
             spots per d**dims; ``None`` or ``inf``: independent spots), ``flux``,
@@ -76,7 +80,6 @@ def transient(grid: Grid, orifice: Orifice, spots: Spots, t_end: float, times=No
         ``rho_s`` at ``t_end`` (``times`` None), frames ``(len(times),) + grid.shape``,
         or the dict.
     """
-    grid.geometry.require("interacting spots", "spots.rho_max")
     if not (np.isfinite(t_end) and t_end > 0):
         raise ValueError(f"t_end: must be > 0, got {t_end!r}")
     rho_max = np.inf if spots.rho_max is None else float(spots.rho_max)
@@ -91,6 +94,9 @@ def transient(grid: Grid, orifice: Orifice, spots: Spots, t_end: float, times=No
     frame_times = np.array([t_end], float) if times is None else np.sort(np.asarray(times, float))
     if frame_times.size and (frame_times[0] < 0 or frame_times[-1] > t_end * (1 + 1e-12)):
         raise ValueError(f"times: must lie in [0, {t_end}]")
+    if not grid.geometry.uniform_cells:     # rings or a staircase: measures and walls
+        return _metric_transient(grid, orifice, spots, t_end, frame_times, times is None,
+                                 rho0, rho_max, flux, cfl, limiter, dt, progress, full_output)
     g, (v, b, b_par), crop = _pad(grid, spots)
     profile = source_profile(g, orifice)
     if rho0 is not None and g.shape != grid.shape:
@@ -107,11 +113,34 @@ def transient(grid: Grid, orifice: Orifice, spots: Spots, t_end: float, times=No
     return res["frames"][-1] if times is None else res["frames"]
 
 
+def _metric_transient(grid, orifice, spots, t_end, frame_times, last_only, rho0, rho_max,
+                      flux, cfl, limiter, dt, progress, full_output):
+    """:func:`transient` on a grid with ring cells or a staircase (``_traffic_metric``):
+    the window padded outward from a symmetry axis, the hopper kept."""
+    p = pad_cells(grid, spots.b)
+    g, (v, b, b_par), crop = _geometry.pad(grid, p, [spots.drift, spots.b, spots.b_par])
+    profile = source_profile(g, orifice)
+    if rho0 is not None and g.shape != grid.shape:
+        rho0 = np.pad(np.asarray(rho0, float), [(0, 0), grid.geometry.padding(p)])
+    solver = _traffic_metric.MetricSolver(g, v, b * v, b_par * v, rho_max, flux,
+                                          spots.diffusion_scaling, limiter,
+                                          lambda t: orifice.rate_at(t) * profile)
+    res = _traffic.integrate(solver, t_end, frame_times, orifice.rate_at, rho0=rho0, cfl=cfl,
+                             dt=dt, progress=progress)
+    res["frames"] = crop(res["frames"])
+    if full_output:
+        return res
+    return res["frames"][-1] if last_only else res["frames"]
+
+
 def free_volume(grid: Grid, rho_s: np.ndarray, kernel) -> np.ndarray:
     """Free-volume fraction a particle sees, ``(w * rho_s)(r)`` (dimensionless).
 
     ``h**dims * convolve(rho_s, kernel.sample(h))``, zero padding (spots outside the
     silo do not exist); frames ``(nt,) + grid.shape`` are convolved frame by frame.
+    Ring cells (``grid.geometry.curved``): the 3D convolution by the ``m = 0``
+    ring-integrated weights of :mod:`spotpde.fields._rings` (``kernel`` 3D, ``rho_s`` per
+    d**3). Inactive hopper cells hold no spots (``rho_s = 0`` there).
 
     Args:
         grid: the grid.
@@ -124,6 +153,10 @@ def free_volume(grid: Grid, rho_s: np.ndarray, kernel) -> np.ndarray:
     if rho.shape != grid.shape and rho.shape[1:] != grid.shape:
         raise ValueError(f"rho_s: must have the grid shape {grid.shape} (or frames of it), "
                          f"got {rho.shape}")
+    if grid.geometry.curved:
+        W = _rings.ring_weights(kernel, grid.spacing, grid.nx, 1, 0)
+        frames = rho.reshape((-1,) + grid.shape)
+        return np.stack(_rings.ring_convolve(list(frames), W)).reshape(rho.shape)
     stencil = kernel.sample(grid.spacing) * grid.cell_volume
     if rho.shape == grid.shape:
         return convolve(rho, stencil)
@@ -260,7 +293,8 @@ def space_time(ds, variable: str = "free_volume_t", x: float | None = None,
 
     Default: ``(t_s, z)`` along the vertical line at ``x`` (3D: and the middle of ``y``),
     ``x`` defaulting to the middle of the domain (the axis). With ``z``: ``(t_s, x)``
-    across the silo at the height nearest ``z`` (3D: the middle of ``y``).
+    across the silo at the height nearest ``z`` (3D: the middle of ``y``). Axisymmetric
+    results (dimension ``r``): ``x`` is the radius, default the axis ``r = 0``.
     """
     if variable not in ds:
         raise ValueError(f"variable: {variable!r} is not in the Dataset (an interacting-spot "
@@ -271,9 +305,10 @@ def space_time(ds, variable: str = "free_volume_t", x: float | None = None,
         if "y" in da.dims:
             da = da.isel(y=da.sizes["y"] // 2)
         return da
-    xs = ds["x"].values
-    x0 = 0.5 * (xs[0] + xs[-1]) if x is None else float(x)
-    da = da.sel(x=x0, method="nearest")
+    across = "r" if "r" in da.dims else "x"
+    xs = ds[across].values
+    x0 = (0.0 if across == "r" else 0.5 * (xs[0] + xs[-1])) if x is None else float(x)
+    da = da.sel({across: x0}, method="nearest")
     if "y" in da.dims:
         da = da.isel(y=da.sizes["y"] // 2)
     return da

@@ -29,8 +29,6 @@ AXISYMMETRIC_DIFFUSIVITY_KEYS = ("D_rr", "D_rz", "D_zz")
 #: Features that only a box supports, with the reason the other shapes give. The one
 #: place these refusals are stated (callers prefix the argument's name).
 BOX_ONLY = {
-    "interacting spots": "interacting spots are solved in Cartesian boxes only, not on "
-                         "axisymmetric or hopper grids",
     "sde ensemble": "sde_ensemble walks particles in a Cartesian box; axisymmetric grids "
                     "and hoppers are not supported",
     "cosine series": "cosine coefficients exist for Cartesian boxes only, not for "

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.special import j0, jn_zeros
 
-from spotpde.density import _geometry, kinematic, traffic
+from spotpde.density import _geometry, kinematic
 from spotpde.density import spot_density as sd
 from spotpde.density.orifice import cosine_coefficients, rate_from_table, source_profile
 from spotpde.grid import Grid
@@ -59,8 +59,6 @@ def test_off_axis_orifice_and_unsupported_paths_raise():
         source_profile(g, Orifice(x=1.0))
     with pytest.raises(ValueError, match="^grid"):
         cosine_coefficients(g, Orifice(x=0.0))
-    with pytest.raises(ValueError, match="^spots.rho_max"):
-        traffic.transient(g, Orifice(x=0.0), Spots(rho_max=1.0), 1.0)
     with pytest.raises(ValueError, match="^spots.method"):
         sd.transient(g, Orifice(x=0.0), Spots(), 1.0, method="euler")
 

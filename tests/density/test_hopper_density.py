@@ -4,7 +4,7 @@ staircase ``grid.active`` (docs/spot_density.md section 9)."""
 import numpy as np
 import pytest
 
-from spotpde.density import _geometry, kinematic, traffic
+from spotpde.density import _geometry, kinematic
 from spotpde.density import spot_density as sd
 from spotpde.density.orifice import source_profile
 from spotpde.parameters import Orifice, Spots
@@ -157,8 +157,3 @@ def test_kinematic_model_in_a_hopper(axi):
     end = paths[0][-1]
     assert end[-1] == pytest.approx(0.0, abs=1e-9) and abs(end[0]) <= W / 2 + g.spacing
 
-
-def test_interacting_spots_refuse_hoppers():
-    with pytest.raises(ValueError, match="^spots.rho_max"):
-        traffic.transient(hopper_grid(False, 30.0, 0.5), Orifice(x=0.0, width=W),
-                          Spots(rho_max=1.0), 1.0)

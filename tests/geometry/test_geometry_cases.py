@@ -68,8 +68,6 @@ def test_axisymmetric_case_builds_a_cylinder_grid_and_a_3d_kernel():
      "domain.hopper_angle", "domain.dims = 2"),
     ({"domain": {"hopper_angle": 30.0}, "orifice": {"width": 2.0, "profile": "gaussian"}},
      "domain.hopper_angle", "uniform"),
-    (_merge(CYLINDER, spots={"mode": "transient", "t_end": 5.0, "rho_max": 1.0}),
-     "spots.rho_max", "Cartesian"),
 ])
 def test_bad_geometry_names_the_key(raw, key, words):
     problems = _problems(raw)
