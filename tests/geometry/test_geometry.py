@@ -139,7 +139,7 @@ def test_one_statement_of_what_each_shape_supports():
             assert not s.ok and s.reason
     # lifted: two-point statistics and the kinematic comparison work in every shape
     assert "two-point statistics" not in FEATURES and "kinematic comparison" not in FEATURES
-    # lifted: interacting spots run on rings and staircases (tests/test_traffic_geometry.py)
+    # lifted: interacting spots run on rings and staircases (tests/density/test_traffic_geometry.py)
     assert "interacting spots" not in FEATURES
     with pytest.raises(ValueError, match="^feature"):
         g["cone"].geometry.require("interacting spots", "spots.rho_max")
