@@ -40,7 +40,9 @@ import numpy as np
 from . import _geometry, _traffic, _traffic_metric
 from ._spots import _pad, check_spots, pad_cells
 from ._traffic import FLUXES, FluxShape, flux_from_name
+from .._figures import figure_format, prepare_matplotlib, save_figure
 from ..fields import _rings
+from ..fields.convolution import convolve
 from ..grid import Grid
 from .orifice import check_orifice, source_profile
 from ..parameters import Orifice, Spots
@@ -147,7 +149,6 @@ def free_volume(grid: Grid, rho_s: np.ndarray, kernel) -> np.ndarray:
         rho_s: spot density (spots per d**dims), grid shape or frames.
         kernel: a :mod:`spotpde.kernels` kernel (``w`` dimensionless).
     """
-    from ..fields.convolution import convolve
 
     rho = np.asarray(rho_s, dtype=float)
     if rho.shape != grid.shape and rho.shape[1:] != grid.shape:
@@ -325,7 +326,6 @@ def plot_space_time(ds, variable: str = "free_volume_t", x: float | None = None,
     Returns the matplotlib Figure; ``path`` also saves it (the format of its extension,
     written atomically: :func:`spotpde._figures.save_figure`).
     """
-    from .._figures import figure_format, prepare_matplotlib, save_figure
 
     if path is not None:
         figure_format(path)          # an unsupported extension: refused before drawing

@@ -70,12 +70,9 @@ LAZY_INTERNAL = {
     ("spotpde.density.spot_density", "spotpde.density._pde"): "py-pde cross-check solver",
 }
 
-#: Left as they are: in-function imports in modules other branches are rewriting (the
-#: Monte Carlo, interacting spots); moving them to the top is the follow-up once those
-#: land.
+#: Left as they are: in-function imports in the Monte Carlo, which another branch is
+#: rewriting; moving them to the top is the follow-up once it lands.
 KNOWN_LEFT = {
-    ("spotpde.density.traffic", "spotpde._figures"),
-    ("spotpde.density.traffic", "spotpde.fields.convolution"),
     ("spotpde.montecarlo._relax", "spotpde.montecarlo._relax3d"),
     ("spotpde.montecarlo._simulate", "spotpde.montecarlo._mc3d"),
     ("spotpde.montecarlo._simulate", "spotpde.fields._walls"),
