@@ -50,7 +50,6 @@ _ALIASES = {
     "pipeline": "app.pipeline",
     "io": "app.io",
     "plotting": "app.plotting",
-    "cli": "app.cli",
     "sweep": "app.sweep",
     "comparison": "analysis.comparison",
     "layers": "app.layers",
@@ -59,7 +58,7 @@ _ALIASES = {
 #: Subpackages and top-level modules, imported on first use.
 _SUBPACKAGES = ("kernels", "kinematic", "grid", "geometry", "parameters", "errors",
                 "density", "fields", "tracer", "pair", "montecarlo", "app", "analysis",
-                "tracks", "observables", "calibration")
+                "tracks", "observables", "calibration", "cli")
 _FUNCTIONS = {"load_case": "app.cases", "run": "app.pipeline", "sweep_case": "app.sweep",
               "fit": "calibration"}
 

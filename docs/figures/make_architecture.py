@@ -62,8 +62,7 @@ CORE = {"grid", "parameters", "errors", "geometry", "_cache", "_roundoff", "_ver
 
 
 #: the command line's modules: the front end on top of everything
-FRONT = {("app", "cli.py"), ("app", "_cli_fit.py"), ("__main__.py",), ("app", "cli"),
-         ("app", "_cli_fit"), ("__main__",)}
+FRONT = {("__main__.py",), ("__main__",)}
 
 
 def stage_of(parts: tuple[str, ...]) -> str | None:

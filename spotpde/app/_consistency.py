@@ -243,7 +243,7 @@ def _check_cells(v: _Validator, key: str, value, extent: float, h: float,
 
 def _check_geometry(v: _Validator, data: dict) -> None:
     """``domain.coordinates`` and ``domain.hopper_angle`` against the other keys."""
-    d, o, s = data["domain"], data["orifice"], data["spots"]
+    d, o = data["domain"], data["orifice"]
     axisymmetric = d.get("coordinates") == "axisymmetric"
     if axisymmetric:
         if d["dims"] != 2:

@@ -1,5 +1,5 @@
 """Compile the tracer kernel in a second process while ``spotpde run`` computes the spot
-density and fields (private; user: :mod:`spotpde.app.cli`).
+density and fields (private; user: :mod:`spotpde.cli`).
 
 The first run after installation compiles the 2D tracer kernel of its reconstruction
 (numba, 5-7 s CPU here, mostly numba's Python front end, which holds the GIL: a thread

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from spotpde.app import cli
+from spotpde import cli
 from spotpde.analysis import comparison
 from spotpde.fields import kernels
 from spotpde.grid import Grid

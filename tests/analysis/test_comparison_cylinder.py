@@ -15,7 +15,7 @@ import pytest
 from scipy import integrate
 
 from spotpde.analysis import comparison
-from spotpde.app import cli
+from spotpde import cli
 from spotpde.density import kinematic
 from spotpde.fields import kernels
 from spotpde.grid import Grid, Hopper

@@ -16,7 +16,8 @@ import pytest
 import xarray as xr
 
 import spotpde
-from spotpde.app import cli, pipeline
+from spotpde import cli
+from spotpde.app import pipeline
 from spotpde.app import io as sio
 from spotpde.app.cases import load_case
 
@@ -266,13 +267,13 @@ def test_sigint_stops_a_run_with_130_and_no_file(tmp_path):
     (tmp_path / "small.toml").write_text(SMALL)
     script = textwrap.dedent("""
         import sys, time
-        import spotpde.app.pipeline, spotpde.app.cli
+        import spotpde.app.pipeline, spotpde.cli
         def slow(case, progress=None, **_):
             progress("spot density", 0.0)
             while True:
                 time.sleep(0.05)
         spotpde.app.pipeline.run = slow
-        sys.exit(spotpde.app.cli.main(["run", "small.toml"]))
+        sys.exit(spotpde.cli.main(["run", "small.toml"]))
     """)
     proc = subprocess.Popen([sys.executable, "-c", script], cwd=tmp_path,
                             stderr=subprocess.PIPE, text=True)

@@ -9,7 +9,7 @@ import pytest
 
 from spotpde.app import estimate
 from spotpde import tracer
-from spotpde.app.cli import main
+from spotpde.cli import main
 from spotpde.grid import Grid
 
 

@@ -24,7 +24,7 @@ import pytest
 
 import spotpde
 from spotpde.app import _resources, cases, estimate, pipeline, sweep
-from spotpde.app.cli import main
+from spotpde.cli import main
 from spotpde.errors import CaseError
 from spotpde.fields import _passage, kernels
 

@@ -5,7 +5,7 @@ Interruptions, full disks and races are made deterministic by replacing
 ``Figure.savefig`` with a function that writes part of a figure into the file it is
 given and then sends the process a real SIGTERM or raises the ``OSError`` of a full disk,
 or that waits at a barrier until every writer is inside it. Commands run in-process
-through :func:`spotpde.app.cli.main` (solvers replaced by the fake result of test_cli),
+through :func:`spotpde.cli.main` (solvers replaced by the fake result of test_cli),
 except where the process itself matters (a file-size limit, the quick exit after
 ``run``, the modules ``plot`` imports).
 """
@@ -27,7 +27,8 @@ import pytest
 from matplotlib.figure import Figure
 
 from spotpde import _figures
-from spotpde.app import _outputs, cli, pipeline, plotting
+from spotpde import cli
+from spotpde.app import _outputs, pipeline, plotting
 from spotpde.app import io as sio
 from spotpde.app.cases import load_case
 from spotpde.errors import WriteError
@@ -405,7 +406,7 @@ def test_plot_with_usable_matplotlib_directories_changes_nothing(tmp_path, monke
 def test_plot_imports_no_solver_and_no_numba(work):
     """``spotpde plot`` took 13-17 s: it must load xarray, netCDF4 and matplotlib only
     (the solvers' modules would import numba and load compiled kernels)."""
-    code = ("import sys; from spotpde.app import cli; status = cli.main(['plot', 'r.nc']); "
+    code = ("import sys; from spotpde import cli; status = cli.main(['plot', 'r.nc']); "
             "print(status, sorted(m for m in sys.modules if m.split('.')[0] == 'numba' or "
             "m.startswith(('spotpde.density', 'spotpde.fields', 'spotpde.tracer', "
             "'spotpde.pair', 'spotpde.montecarlo', 'spotpde.calibration'))))")

@@ -24,7 +24,8 @@ import pytest
 import scipy.sparse as sp
 
 from spotpde.analysis import comparison
-from spotpde.app import _nesting, cases, cli, pipeline, sweep
+from spotpde import cli
+from spotpde.app import _nesting, cases, pipeline, sweep
 from spotpde.app.cases import MAX_NESTING, load_case, validate
 from spotpde.density import kinematic
 from spotpde.errors import CaseError

@@ -40,7 +40,7 @@ DRIVER = """
 import os, signal, sys
 {hooks}
 sys.argv = ["spotpde", *sys.argv[1:]]
-from spotpde.app.cli import main
+from spotpde.cli import main
 sys.exit(main())
 """
 

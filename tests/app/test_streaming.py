@@ -9,7 +9,7 @@ import xarray as xr
 import spotpde
 from spotpde.app import cases
 from spotpde import tracer
-from spotpde.app.cli import main
+from spotpde.cli import main
 from spotpde.errors import CaseError
 
 SMALL = {

@@ -17,7 +17,7 @@ import xarray as xr
 
 import spotpde
 from spotpde.app import sweep
-from spotpde.app.cli import main
+from spotpde.cli import main
 from spotpde.app import io as sio
 from spotpde.errors import CaseError, NumericalError
 from conftest import session_dir

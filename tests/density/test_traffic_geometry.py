@@ -268,7 +268,7 @@ def test_a_cone_case_with_rho_max_runs_end_to_end(tmp_path, monkeypatch):
     carries the interacting-spot outputs with a round-off budget."""
     import xarray as xr
 
-    from spotpde.app import cli
+    from spotpde import cli
 
     (tmp_path / "cone.toml").write_text(CONE_CASE)
     monkeypatch.chdir(tmp_path)

@@ -268,7 +268,7 @@ def test_bad_walls_argument_and_case_key():
 
 
 def test_cli_check_rejects_a_bad_wall_treatment(tmp_path, capsys):
-    from spotpde.app import cli
+    from spotpde import cli
 
     bad = tmp_path / "bad.toml"
     bad.write_text('[kernel]\nwalls = "reflect"\n')

@@ -17,7 +17,8 @@ from hypothesis import strategies as st
 
 import spotpde
 from spotpde import montecarlo as mc
-from spotpde.app import _schema_mc, cli
+from spotpde import cli
+from spotpde.app import _schema_mc
 from spotpde.app.cases import load_case
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -243,5 +243,5 @@ def test_pipeline_writes_steady_variables(tmp_path):
     h = 0.5
     assert ds.attrs["mean_exit_time"] == pytest.approx(G.sum() * h * h, rel=1e-12)
     # the plots of a result without P frames
-    from spotpde.app.cli import main
+    from spotpde.cli import main
     assert main(["plot", str(path), "-o", str(tmp_path / "f.png")]) == 0

@@ -1,5 +1,5 @@
 """``spotpde fit``: the spot model's parameters fitted to tracked grains (private; the
-command line's ``fit`` subcommand, see :mod:`spotpde.app.cli` and docs/calibration.md).
+command line's ``fit`` subcommand, see :mod:`spotpde.cli` and docs/calibration.md).
 
     spotpde fit CASE.toml TRACKS --free KEY[=LO:HI] [--free ...] [--scale S] [--fps F]
                 [--origin X,Y] [--y-down] [--observables A,B] [--blocks N]
@@ -122,8 +122,8 @@ def cmd_fit(args, check_outputs, figure_formats) -> int:
     # the calibration stack (lmfit, the observables, the solvers) loads only for this command
     from ..calibration import fit, plot_fit
     from ..tracks import read
-    from .cases import load_case
-    from .io import write_netcdf
+    from ..app.cases import load_case
+    from ..app.io import write_netcdf
 
     case = load_case(args.case)
     try:
@@ -164,7 +164,7 @@ def _client(workers):
     if workers is None:
         yield None
         return
-    from .sweep import _dask_client    # the sweeps' embedded cluster and its clean abort
+    from ..app.sweep import _dask_client    # the sweeps' embedded cluster and its clean abort
 
     with _dask_client(None, workers, workers, Path.cwd()) as client:
         yield client

@@ -1,5 +1,5 @@
 """The ``spotpde`` command line: ``run``, ``check``, ``plot``, ``sweep``, ``compare``, ``fit``
-(in ``_cli_fit``), ``--version``.
+(in ``_fit``), ``--version``.
 
 Exit status (docs/interface.md): 0 done; 2 invalid case, unreadable input or an output
 path that cannot or must not be written (one line per problem on standard error, no
@@ -22,8 +22,8 @@ from pathlib import Path
 from tqdm import tqdm
 
 from .._version import __version__
-from . import _cli_fit
-from ._outputs import (FIGURE_FORMATS, Terminated, file_identity, handle_termination,
+from . import _fit
+from ..app._outputs import (FIGURE_FORMATS, Terminated, file_identity, handle_termination,
                        held_signals, output_problem)
 from ..errors import CaseError, NumericalError, WriteError
 
@@ -88,7 +88,7 @@ def _problems(err: CaseError) -> None:
 
 def cmd_check(args) -> int:
     """``spotpde check CASE.toml``: validate the case, print its grid; exit status 0."""
-    from .cases import load_case
+    from ..app.cases import load_case
 
     case = load_case(args.case)
     _check_outputs([("output.path", case.output_path, None)], inputs=[args.case])
@@ -104,7 +104,7 @@ def _estimate(case, allow_long: bool, quiet: bool = False, fields=None) -> None:
     """Print the tracer run-time estimate (unless ``quiet``); refuse (CaseError) a run over a
     day. From the steady ``fields`` when given (``run``: the fields its pipeline computed),
     else computing them (``check``)."""
-    from . import estimate
+    from ..app import estimate
     try:
         est = (estimate.case_estimate(case) if fields is None else
                estimate.fields_estimate(case, fields))
@@ -126,7 +126,7 @@ def _run_libraries(case) -> None:
     netCDF4 and xarray's backends, found through entry points on first use), the spot
     density, field (with the FFT convolution: pyfftw) and kinematic solvers, and the
     tracer."""
-    from ._localdask import import_libraries
+    from ..app._localdask import import_libraries
 
     import_libraries(dask=False)
     try:     # xarray's netCDF writer asks dask for its scheduler, and dask imports distributed
@@ -148,7 +148,7 @@ def _run_libraries(case) -> None:
 def _warmup(case):
     """Start compiling the run's tracer kernel in a child process (:mod:`._warmup`) when
     the run will step a 2D tracer and numba's cache has never held that kernel."""
-    from . import _warmup as warmup
+    from ..app import _warmup as warmup
 
     t = case.tracer
     if t is None or t.t_end == float("inf") or case.grid.dims != 2 or \
@@ -174,10 +174,10 @@ def cmd_run(args) -> int:
     the tracer starts and before any file is created; with transient spots, before the
     spot density stage (:func:`~spotpde.app.estimate.transient_estimate`).
     """
-    from ._localdask import deferred_signals
+    from ..app._localdask import deferred_signals
 
     with deferred_signals():    # a signal during the imports is acted upon after them
-        from .cases import load_case
+        from ..app.cases import load_case
 
         case = load_case(args.case, frames_in_memory=False)   # frames are streamed to the file
         if args.output is not None:
@@ -199,7 +199,7 @@ def cmd_run(args) -> int:
             progress("spot density", 0.0)
         with deferred_signals():
             _run_libraries(case)
-            from .pipeline import run
+            from ..app.pipeline import run
 
         def on_fields(fields):
             if progress is not None:
@@ -218,7 +218,7 @@ def cmd_run(args) -> int:
     _say(f"spotpde: wrote {out} ({time.monotonic() - t0:.1f} s)")
     if fig is not None:
         with deferred_signals():
-            from .plotting import plot_result
+            from ..app.plotting import plot_result
 
         plot_result(ds, fig)
         _say(f"spotpde: wrote {fig}")
@@ -229,8 +229,8 @@ def cmd_plot(args) -> int:
     """``spotpde plot OUT.nc [-o FIG.png]``: the standard figure, in the format of the
     extension; 2 for unreadable input or coordinates that cannot be drawn, 1 for a
     failed write. Imports xarray, netCDF4 and matplotlib only (no solver, no numba)."""
-    from . import io
-    from .plotting import plot_result, plottable
+    from ..app import io
+    from ..app.plotting import plot_result, plottable
 
     fig = Path(args.output) if args.output else Path(args.result).with_suffix(".png")
     _check_outputs([("-o", fig, FIGURE_FORMATS)], inputs=[args.result])
@@ -259,7 +259,7 @@ def cmd_sweep(args) -> int:
     except KeyboardInterrupt as exc:
         if not getattr(args, "command_line", False):    # main() called from Python
             raise
-        from ._localdask import before_exit
+        from ..app._localdask import before_exit
 
         status = _interrupted(args, exc)
         before_exit()
@@ -270,11 +270,11 @@ def cmd_sweep(args) -> int:
 
 def _sweep_command(args) -> int:
     """:func:`cmd_sweep` without its handling of interrupts."""
-    from ._localdask import deferred_signals, import_libraries
+    from ..app._localdask import deferred_signals, import_libraries
 
     with deferred_signals():    # a signal during the imports is acted upon after them
-        from .cases import load_case
-        from .sweep import parse_settings, sweep_case
+        from ..app.cases import load_case
+        from ..app.sweep import parse_settings, sweep_case
 
         if args.workers is not None and args.workers < 1:
             raise CaseError(f"--workers: must be >= 1, got {args.workers}")
@@ -318,7 +318,7 @@ def cmd_compare(args) -> int:
     cannot use (:func:`spotpde.comparison.case_problems`, e.g. a profile of ``spots.b``:
     one line per problem naming the key, on standard error).
     """
-    from .cases import load_case
+    from ..app.cases import load_case
     from ..analysis.comparison import case_problems, compare_rules, plot_comparison
 
     if args.output:
@@ -415,7 +415,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="rules lam to compare (default: 0.5 1)")
     k.add_argument("-o", "--output", metavar="FIG.png", help="write the comparison figure")
     k.set_defaults(func=cmd_compare)
-    _cli_fit.add_parser(sub, _check_outputs, FIGURE_FORMATS)
+    _fit.add_parser(sub, _check_outputs, FIGURE_FORMATS)
     return p
 
 
