@@ -29,6 +29,22 @@ def _da(data, grid, units, long_name, **attrs):
         "spotpde_units": units, **attrs})
 
 
+def _geometry_names(g, names):
+    """Cell measure (spot density's denominator) and field names of the grid's shape: a
+    box's ``h**2`` and names unchanged; rings (``u_r``, ``D_rr``, ..., ring volumes, d**3)
+    and hoppers (the material's part of each cell, inactive cells NaN) otherwise."""
+    geo = g.geometry
+    if geo.uniform_cells:
+        return g.spacing**2, names
+    vol = np.broadcast_to(geo.cell_volumes * geo.material, g.shape)
+    keys = geo.drift_keys + geo.diffusivity_keys
+    comp = {"x": geo.components[0]}
+    renamed = [(key, u, ln.replace(", x component", f", {comp['x']} component")
+                .replace(", xx", f", {comp['x']}{comp['x']}").replace(", xz", f", {comp['x']}z"))
+               for key, (_, u, ln) in zip(keys, names)]
+    return np.where(np.asarray(geo.active) & (vol > 0), vol, np.nan), renamed
+
+
 def measure(result: MCResult, tracer: bool = True) -> xr.Dataset:
     """Fields of a run as an ``xarray.Dataset`` with the continuum result's names.
 
@@ -63,11 +79,11 @@ def measure(result: MCResult, tracer: bool = True) -> xr.Dataset:
                  ("D_xx", "d**2 / time", "particle diffusivity D_p, xx"),
                  ("D_xz", "d**2 / time", "particle diffusivity D_p, xz"),
                  ("D_zz", "d**2 / time", "particle diffusivity D_p, zz")]
+        h2, names = _geometry_names(g, names)
         for k, (name, units, ln) in enumerate(names):
             f = 1.0 if k < 2 else 0.5
             ds[name] = _da(f * mean[k], g, units, ln + " (Monte Carlo probes)")
             ds[name + "_se"] = _da(f * se[k], g, units, "standard error of " + name)
-        h2 = g.spacing**2
         rb = result.rho_hist[ok] / (result.batch_ticks[ok][:, None, None] * h2)
         ds["rho_s"] = _da(result.rho_hist.sum(axis=0) / (result.n_ticks * h2), g, "1 / d**2",
                           "spot density (Monte Carlo)")

@@ -45,6 +45,7 @@ from ..grid import Grid
 from ..parameters import Orifice, Spots
 from ._particles import blob, lattice, random_packing, tracking
 from ._relax import Relax, particle_diameters, relax_params
+from ._geometry import geometry_particles, runs_in_geometry, simulate_geometry
 from ._simulate3d import case_particles3d, run3d
 
 STEPS = ("gaussian", "binary")
@@ -292,8 +293,9 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
         probes = True
     if grid.dims == 3 and probes:
         problems.append("probes: the 3D Monte Carlo has no probe fields; pass probes=False")
-    if getattr(kernel, "dims", 2) != grid.dims:
-        problems.append(f"kernel: a {getattr(kernel, 'dims', 2)}D kernel in a {grid.dims}D grid")
+    if getattr(kernel, "dims", 2) != grid.geometry.kernel_dims:
+        problems.append(f"kernel: a {getattr(kernel, 'dims', 2)}D kernel in a {grid.dims}D grid"
+                        + (" of rings (needs 3D)" if grid.geometry.curved else ""))
     v_s = _scalar("spots.drift", spots.drift)
     b = _scalar("spots.b", spots.b)
     b_par = _scalar("spots.b_par", spots.b_par)
@@ -341,6 +343,15 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
         K.PROFILE_UNIFORM if orifice.profile == "uniform" else K.PROFILE_GAUSSIAN)
     skin = 0.5 if skin is None else float(skin)
     cell = max(kp.reach[0], kp.reach[1], 0.25) + skin
+    if runs_in_geometry(grid):  # wedge hopper, cylinder, cone: _geometry
+        if relax is not None:
+            raise ValueError("relax: packing constraints run in boxes only, not in "
+                             "hoppers or cylinders")
+        return simulate_geometry(
+            grid, orifice, spots, kp, rule=float(rule), gamma=float(gamma), step=step,
+            steps=steps, seed=int(seed), t_end=t_end, dt=dt, n_ticks=n_ticks, Q0=Q0, b0=b0,
+            b_par=b_par, profile=profile, particles=particles, tracked=tracked,
+            records=records, batches=batches, walls=walls, kernel=kernel, progress=progress)
     if grid.dims == 3:
         return run3d(grid, orifice, spots, kp, rule=float(rule), gamma=float(gamma),
                      step=step, steps=steps, seed=int(seed), t_end=t_end, dt=dt,
@@ -477,10 +488,11 @@ def from_case(case, *, particles="lattice", spacing: float = 1.0, **kwargs) -> M
             radius, so that a void displaces a given particle at most once).
     """
     grid = case.grid
-    if grid.axisymmetric or grid.hopper is not None:
-        raise ValueError("case: the discrete spot model runs in rectangular boxes; this "
-                         "case is " + ("axisymmetric" if grid.axisymmetric else "a hopper")
-                         + " (domain.coordinates / domain.hopper_angle)")
+    if runs_in_geometry(grid) and isinstance(particles, str):
+        if particles != "lattice":
+            raise ValueError(f"particles: hoppers and cylinders take 'lattice', None or an "
+                             f"array of positions, got {particles!r}")
+        particles = geometry_particles(grid, spacing)
     if grid.dims == 3 and isinstance(particles, str):
         particles = case_particles3d(grid, particles, spacing, kwargs.get("seed", 0))
     if isinstance(particles, str):
