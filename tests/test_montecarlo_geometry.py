@@ -153,14 +153,14 @@ def _check_points(case, cont, mc, points, keys, R):
 def wedge():
     case = _case("wedge")
     R = 6
-    return case, spotpde.run(case), _replica_drift(case, ("u_x", "u_z"), range(10, 10 + R),
+    return case, spotpde.run(case), _replica_drift(case, ("u_x", "u_z", "rho_s"), range(10, 10 + R),
                                                     150.0, 0.15625), R
 
 
-def test_wedge_drift_matches_the_continuum_within_replica_errors(wedge):
+def test_wedge_drift_and_spot_density_match_the_continuum_within_replica_errors(wedge):
     case, cont, mc, R = wedge
     points = [(zp, xp) for zp in (6.25, 10.25, 16.25) for xp in (0.25, -2.25, 2.25)]
-    _check_points(case, cont, mc, points, ("u_x", "u_z"), R)
+    _check_points(case, cont, mc, points, ("u_x", "u_z", "rho_s"), R)
     # the flow is measured: the drift is resolved to a few per cent
     assert np.all(mc["u_z"][1][12:32, 12:20] < 0.03 * np.abs(mc["u_z"][0][12:32, 12:20]))
 
@@ -180,7 +180,7 @@ def test_wedge_drift_rejects_the_box_without_its_hopper(wedge):
 
 
 @pytest.mark.parametrize("kind", ["cylinder", "cone"])
-def test_ring_drift_matches_the_continuum_within_replica_errors(kind):
+def test_ring_drift_and_spot_density_match_the_continuum_within_replica_errors(kind):
     case = _case(kind)
     R = 5
     # the cone's staircase at h = 0.5 d is too coarse 3 d from its wall (u_r 10 % off at
@@ -189,8 +189,8 @@ def test_ring_drift_matches_the_continuum_within_replica_errors(kind):
     assert "u_r" in cont and "u_r" in measure(from_case(case, particles=None, t_end=2.0))
     # a step of R/16: at R/8 the drift near the cylinder's wall is 4 % (6 SE) too fast,
     # a bias of the finite step (docs/montecarlo.md, "Hoppers and cylinders")
-    mc = _replica_drift(case, ("u_r", "u_z"), range(20, 20 + R), 60.0, 0.15625)
+    mc = _replica_drift(case, ("u_r", "u_z", "rho_s"), range(20, 20 + R), 60.0, 0.15625)
     points = [(zp, xp) for zp in (6.25, 12.25) for xp in (0.75, 2.75)]
     if kind == "cylinder":
         points += [(12.25, 5.25)]
-    _check_points(case, cont, mc, points, ("u_r", "u_z"), R)
+    _check_points(case, cont, mc, points, ("u_r", "u_z", "rho_s"), R)

@@ -98,12 +98,14 @@ def _probes(grid, azimuths: int):
 
 def simulate_geometry(grid, orifice, spots, kp, *, rule, gamma, step, steps, seed, t_end,
                       dt, n_ticks, Q0, b0, b_par, profile, particles, tracked, records,
-                      batches, walls, kernel, azimuths: int = 8, progress=None):
+                      batches, walls, kernel, azimuths: int = 8, progress=None,
+                      probes: bool = True):
     """Run the Monte Carlo in the hopper or cylinder of ``grid`` (arguments as resolved
     by ``_simulate.simulate``; ``kp`` the kernel's ``KernelParams``, 3D on rings).
 
     ``particles``: ``(N, 2)`` ``(x, z)`` (wedge) or ``(N, 3)`` ``(x, z, y)`` (rings), all
-    inside the material (ValueError naming ``particles`` otherwise). ``azimuths``: probes
+    inside the material (ValueError naming ``particles`` otherwise). ``probes``: False
+    for particles only (``probe``, ``rho_hist`` None). ``azimuths``: probes
     per ring (the ``(r, z)`` fields average them, the drift's horizontal component
     projected on each probe's radial direction).
 
@@ -158,6 +160,8 @@ def simulate_geometry(grid, orifice, spots, kp, *, rule, gamma, step, steps, see
     cell_start = np.zeros(ncell + 1, np.int64)
     cell_idx = np.zeros(max(n, 1), np.int64)
     qx, qy, qz, qbin, per_bin = _probes(grid, int(azimuths))
+    if not probes:
+        qx, qy, qz, qbin = (a[:0] for a in (qx, qy, qz, qbin))
     qcell_start = np.zeros(ncell + 1, np.int64)
     qcell_idx = np.zeros(max(qx.size, 1), np.int64)
     G.build_cells(prm, qx, qy, qz, np.zeros(qx.size, np.int64), qcell_start, qcell_idx)
@@ -199,7 +203,8 @@ def simulate_geometry(grid, orifice, spots, kp, *, rule, gamma, step, steps, see
         initial=P.copy(), final=final, status=status, exit_x=exit_s, exit_t=exit_t * dt,
         tracked=bk["tracked"], times=(bk["rec_ticks"] + 1) * dt, positions=bk["tpos"],
         levels=bk["levels"], cross_x=bk["cross_x"], cross_t=bk["cross_t"],
-        probe=probe.reshape(5, batches, *shape), rho_hist=rho_hist.reshape(batches, *shape),
+        probe=probe.reshape(5, batches, *shape) if probes else None,
+        rho_hist=rho_hist.reshape(batches, *shape) if probes else None,
         batch_ticks=np.bincount(batch_of_tick, minlength=batches),
         counters={"spots_injected": int(cnt[K.C_INJECTED]), "spot_steps": int(cnt[K.C_STEPS]),
                   "particle_updates": int(cnt[K.C_UPDATES]),

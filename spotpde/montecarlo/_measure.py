@@ -85,10 +85,11 @@ def measure(result: MCResult, tracer: bool = True) -> xr.Dataset:
             ds[name] = _da(f * mean[k], g, units, ln + " (Monte Carlo probes)")
             ds[name + "_se"] = _da(f * se[k], g, units, "standard error of " + name)
         rb = result.rho_hist[ok] / (result.batch_ticks[ok][:, None, None] * h2)
-        ds["rho_s"] = _da(result.rho_hist.sum(axis=0) / (result.n_ticks * h2), g, "1 / d**2",
+        per = "1 / d**3" if g.geometry.curved else "1 / d**2"   # rings: per unit volume
+        ds["rho_s"] = _da(result.rho_hist.sum(axis=0) / (result.n_ticks * h2), g, per,
                           "spot density (Monte Carlo)")
         ds["rho_s_se"] = _da(rb.std(axis=0, ddof=1) / math.sqrt(nb) if nb > 1
-                             else np.full(g.shape, np.nan), g, "1 / d**2",
+                             else np.full(g.shape, np.nan), g, per,
                              "standard error of rho_s")
     same_levels = (result.levels.size == g.nz and np.allclose(result.levels, g.z))
     if tracer and result.tracked.size and same_levels:

@@ -242,7 +242,9 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
             the probe points, its walls (``"reflecting"``/``"open"``) bound spots and
             particles. A 3D grid (``dims = 3``, e.g. a thin slab with ``y_range`` a few
             d deep) runs the 3D model (``_simulate3d``, docs/packing.md): spots walk in
-            ``x`` and ``y``, the side, front and back walls bound them, no probes.
+            ``x`` and ``y``, the side, front and back walls bound them, no probes. A
+            wedge hopper, or an axisymmetric grid (cylinder, cone; a 3D kernel, particles
+            ``(N, 3)`` as ``(x, z, y)``) runs ``_geometry`` (docs/montecarlo.md 7b).
         orifice: spot source on the floor (``rate`` = Q0 in spots per unit time,
             constant).
         spots: ``drift`` v_s (d per unit time), ``b`` and ``b_par`` (d), constants.
@@ -351,7 +353,8 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
             grid, orifice, spots, kp, rule=float(rule), gamma=float(gamma), step=step,
             steps=steps, seed=int(seed), t_end=t_end, dt=dt, n_ticks=n_ticks, Q0=Q0, b0=b0,
             b_par=b_par, profile=profile, particles=particles, tracked=tracked,
-            records=records, batches=batches, walls=walls, kernel=kernel, progress=progress)
+            records=records, batches=batches, walls=walls, kernel=kernel, progress=progress,
+            probes=bool(probes))
     if grid.dims == 3:
         return run3d(grid, orifice, spots, kp, rule=float(rule), gamma=float(gamma),
                      step=step, steps=steps, seed=int(seed), t_end=t_end, dt=dt,
@@ -482,7 +485,8 @@ def from_case(case, *, particles="lattice", spacing: float = 1.0, **kwargs) -> M
             (:func:`random_packing`, phi 0.5), ``"tracer"`` (2000 particles from the
             tracer blob, all tracked), ``None``, or an ``(N, 2)`` array. 3D: a simple
             cubic lattice, :func:`dense_packing` at phi 0.5, no ``"tracer"``; arrays
-            ``(N, 3)`` in columns ``(x, z, y)``.
+            ``(N, 3)`` in columns ``(x, z, y)``. Hoppers and cylinders:
+            ``"lattice"`` is :func:`geometry_particles` (inside the material only).
         **kwargs: passed to :func:`simulate` (``t_end`` defaults to ``case.tracer.t_end``;
             for ``tracer.model = "void"`` the step defaults to 1 d, larger than the void's
             radius, so that a void displaces a given particle at most once).
