@@ -153,14 +153,15 @@ def _check_points(case, cont, mc, points, keys, R):
 def wedge():
     case = _case("wedge")
     R = 6
-    return case, spotpde.run(case), _replica_drift(case, ("u_x", "u_z", "rho_s"), range(10, 10 + R),
+    return case, spotpde.run(case), _replica_drift(case, ("u_x", "u_z", "rho_s", "D_xx"),
+                                                    range(10, 10 + R),
                                                     150.0, 0.15625), R
 
 
 def test_wedge_drift_and_spot_density_match_the_continuum_within_replica_errors(wedge):
     case, cont, mc, R = wedge
     points = [(zp, xp) for zp in (6.25, 10.25, 16.25) for xp in (0.25, -2.25, 2.25)]
-    _check_points(case, cont, mc, points, ("u_x", "u_z", "rho_s"), R)
+    _check_points(case, cont, mc, points, ("u_x", "u_z", "rho_s", "D_xx"), R)
     # the flow is measured: the drift is resolved to a few per cent
     assert np.all(mc["u_z"][1][12:32, 12:20] < 0.03 * np.abs(mc["u_z"][0][12:32, 12:20]))
 
@@ -189,8 +190,30 @@ def test_ring_drift_and_spot_density_match_the_continuum_within_replica_errors(k
     assert "u_r" in cont and "u_r" in measure(from_case(case, particles=None, t_end=2.0))
     # a step of R/16: at R/8 the drift near the cylinder's wall is 4 % (6 SE) too fast,
     # a bias of the finite step (docs/montecarlo.md, "Hoppers and cylinders")
-    mc = _replica_drift(case, ("u_r", "u_z", "rho_s"), range(20, 20 + R), 60.0, 0.15625)
+    mc = _replica_drift(case, ("u_r", "u_z", "rho_s", "D_rr"), range(20, 20 + R), 60.0, 0.15625)
     points = [(zp, xp) for zp in (6.25, 12.25) for xp in (0.75, 2.75)]
     if kind == "cylinder":
         points += [(12.25, 5.25)]
-    _check_points(case, cont, mc, points, ("u_r", "u_z", "rho_s"), R)
+    _check_points(case, cont, mc, points, ("u_r", "u_z", "rho_s", "D_rr"), R)
+
+
+def test_tracked_particles_bin_in_r_z_like_the_continuum_tracer():
+    """Tracked 3D particles of the cylinder binned on the (r, z) cells: a density per
+    unit volume normalised as the continuum's P (sum P * ring volume = 1)."""
+    case = _case("cylinder")
+    grid = case.grid
+    P = geometry_particles(grid, 0.5)
+    r = from_case(case, particles=P, t_end=4.0, seed=3, tracked="all", records=2,
+                  probes=False, step=0.3125)
+    assert r.probe is None and r.positions.shape[-1] == 3
+    dens = mcstats.particle_density(grid, r.initial)
+    vol = grid.geometry.cell_volumes
+    assert float((dens * vol).sum()) == pytest.approx(1.0, rel=1e-12)
+    # uniform lattice: the fraction within radius r is (r / a)**2 (per-volume density
+    # flat in r; binning by h**2 instead of ring volumes would give r / a)
+    inside = np.cumsum((dens * vol).sum(axis=0))
+    edges = grid.x + 0.5 * grid.spacing
+    for j in (3, 7, 11):
+        assert inside[j] == pytest.approx((edges[j] / grid.x_range[1]) ** 2, abs=0.02)
+    later = mcstats.particle_density(grid, r.positions[-1])
+    assert float((later * vol).sum()) == pytest.approx(1.0, rel=1e-12)

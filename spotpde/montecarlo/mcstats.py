@@ -240,6 +240,9 @@ def particle_density(grid: Grid, points, weights=None) -> np.ndarray:
     Args:
         grid: 2D grid.
         points: ``(N, 2)`` positions ``(x, z)``; rows with NaN (gone) are ignored.
+            Axisymmetric grid: ``(N, 2)`` as ``(r, z)`` or the Monte Carlo's ``(N, 3)``
+            ``(x, z, y)``, binned in ``(r, z)`` and divided by the ring volumes
+            ``2 pi r h**2`` (the continuum tracer's ``P``, per d**3).
         weights: optional per-point weights (default 1).
 
     Raises:
@@ -248,6 +251,8 @@ def particle_density(grid: Grid, points, weights=None) -> np.ndarray:
     if grid.dims != 2:
         raise ValueError(f"grid: particle_density is 2D, got dims={grid.dims}")
     p = np.asarray(points, dtype=float)
+    if grid.geometry.curved and p.ndim == 2 and p.shape[1] == 3:   # (x, z, y) -> (r, z)
+        p = np.column_stack([np.hypot(p[:, 0], p[:, 2]), p[:, 1]])
     if p.ndim != 2 or p.shape[1] != 2:
         raise ValueError(f"points: need an (N, 2) array of (x, z), got shape {p.shape}")
     w = np.ones(len(p)) if weights is None else np.asarray(weights, dtype=float)
@@ -259,6 +264,8 @@ def particle_density(grid: Grid, points, weights=None) -> np.ndarray:
     total = H.sum()
     if not total > 0:
         raise ValueError("points: no particle inside the grid")
+    if grid.geometry.curved:   # rings: per unit volume, sum(P * ring volumes) = 1
+        return H / (total * grid.geometry.cell_volumes)
     return H / (total * grid.cell_volume)
 
 
