@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 import spotpde
+from spotpde.grid import Grid
 from spotpde.montecarlo import from_case, geometry_particles, measure, mcstats
 from spotpde.montecarlo import _geom_kernels as G
 
@@ -217,3 +218,20 @@ def test_tracked_particles_bin_in_r_z_like_the_continuum_tracer():
         assert inside[j] == pytest.approx((edges[j] / grid.x_range[1]) ** 2, abs=0.02)
     later = mcstats.particle_density(grid, r.positions[-1])
     assert float((later * vol).sum()) == pytest.approx(1.0, rel=1e-12)
+
+
+def test_geometry_side_walls_and_contains_of_the_four_shapes():
+    wedge, cyl, cone = _case("wedge").grid, _case("cylinder").grid, _case("cone").grid
+    box = Grid(2, (-8.0, 8.0), (0.0, 24.0), 0.5)
+    assert box.geometry.side_walls() == (0.0, np.inf, 0.0)
+    assert cyl.geometry.side_walls() == (0.0, np.inf, 0.0)      # the axis, no hopper
+    c, hw, s = wedge.geometry.side_walls()
+    assert (c, hw) == (0.0, 2.0) and s == pytest.approx(math.tan(math.radians(30.0)))
+    assert cone.geometry.side_walls()[:2] == (0.0, 2.0)
+    W = 2.0 + 6.0 * s                                          # at z = 6
+    assert wedge.geometry.contains([W - 1e-9, -W + 1e-9, W + 1e-9], 6.0).tolist() == [True, True, False]
+    assert cone.geometry.contains([W - 1e-9, W + 1e-9], 6.0).tolist() == [True, False]
+    assert cyl.geometry.contains([7.9, 8.1, 3.0], [6.0, 6.0, 25.0]).tolist() == [True, False, False]
+    assert box.geometry.contains([7.9, -8.1], 6.0).tolist() == [True, False]
+    # the cone meets the cylinder wall: above it the wall r = a bounds the material
+    assert cone.geometry.contains([7.99, 8.01], 19.0).tolist() == [True, False]
