@@ -262,15 +262,15 @@ def advance_geom(prm, cnt, n_ticks, sx, sy, sz, sxi, syi, px, py, pz, status, ex
             x = prm.xc
             y = 0.0
             if prm.profile != PROFILE_POINT:
-                if cyl == 1:   # uniform over the disk (Gaussian: 2D normal of sd ow/2)
+                if cyl == 1:   # uniform over the disk (Gaussian: sd ow in x and y, as _mc3d)
                     if prm.profile == PROFILE_UNIFORM:
                         rr = prm.ow * math.sqrt(np.random.random())
                         th = 2.0 * math.pi * np.random.random()
                         x = rr * math.cos(th)
                         y = rr * math.sin(th)
                     else:
-                        x = 0.5 * prm.ow * np.random.standard_normal()
-                        y = 0.5 * prm.ow * np.random.standard_normal()
+                        x = prm.ow * np.random.standard_normal()
+                        y = prm.ow * np.random.standard_normal()
                 elif prm.profile == PROFILE_UNIFORM:
                     x = prm.xc + 2.0 * prm.ow * (np.random.random() - 0.5)
                 else:
