@@ -235,3 +235,19 @@ def test_geometry_side_walls_and_contains_of_the_four_shapes():
     assert box.geometry.contains([7.9, -8.1], 6.0).tolist() == [True, False]
     # the cone meets the cylinder wall: above it the wall r = a bounds the material
     assert cone.geometry.contains([7.99, 8.01], 19.0).tolist() == [True, False]
+
+
+def test_renormalised_walls_divide_by_the_coverage_and_truncated_ones_do_not():
+    """Same seed, same spot paths (the coverage draws no random numbers): the
+    renormalised drift is the truncated one divided by phi < 1 near the cylinder's wall,
+    and the same in the middle. Persistent steps (gamma = 0.5) reflect at the wall."""
+    case = _case("cylinder")
+    kw = dict(particles=None, t_end=30.0, seed=6, step=0.3125, gamma=0.5, batches=4)
+    ren = measure(from_case(case, walls="renormalise", **kw))
+    tru = measure(from_case(case, walls="truncate", **kw))
+    ratio = (ren.u_z / tru.u_z).sel(z=slice(8, 16)).values
+    assert np.all(np.abs(ratio[:, :4] - 1.0) < 1e-6)          # r < 2: phi = 1
+    assert np.all(ratio[:, -1] > 1.2)                          # the wall ring: phi < 0.8
+    r = from_case(case, **kw)
+    c = r.counters
+    assert c["spots_injected"] == c["spots_removed"] + c["spots_active"]

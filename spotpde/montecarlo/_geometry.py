@@ -52,7 +52,8 @@ def geometry_particles(grid, spacing: float = 1.0) -> np.ndarray:
 
 
 def _phi_table(grid, kernel, walls: str) -> np.ndarray:
-    """The continuum's kernel coverage ``phi`` on the cell centres, continued from the
+    """The continuum's kernel coverage ``phi`` on the cell centres (rings: relative to
+    a cylinder without a wall in reach), continued from the
     nearest active cell of each row into the inactive ones (so that interpolating at a
     spot inside the material never reads the ~0 of a cell outside); empty: no
     renormalisation."""
@@ -61,8 +62,16 @@ def _phi_table(grid, kernel, walls: str) -> np.ndarray:
         return np.zeros((0, 0))
     if geo.curved:
         from ..fields._axisymmetric import coverage
+        from ..grid import Grid
 
         phi = np.asarray(coverage(grid, kernel, None), dtype=float)
+        # the ring quadrature's own error near the axis (phi up to 1.005 with no wall in
+        # reach) belongs to the continuum's discrete kernel, not to the walls: divide it
+        # out with the coverage of a cylinder wider by the kernel's reach
+        h = grid.spacing
+        wider = Grid(2, (0.0, grid.x_range[1] + h * math.ceil(kernel.reach[0] / h + 1)),
+                     grid.z_range, h, walls=grid.walls, coordinates="axisymmetric")
+        phi = phi / np.asarray(coverage(wider, kernel, None), dtype=float)[:, :grid.nx]
     else:
         from ..fields._walls import coverage
 
