@@ -250,6 +250,23 @@ class Geometry:
         moved ``margin`` d outward (negative beyond it; ``inf`` without a hopper)."""
         return np.inf
 
+    def side_walls(self) -> tuple[float, float, float]:
+        """``(centre, half_width, slope)`` of the slanted walls: the material is the
+        grid's box cut to ``|x - centre| <= half_width + slope (z - z0)`` (``r`` in place
+        of ``|x - centre|`` on rings); ``half_width = inf`` without a hopper. In d, d, 1."""
+        return 0.5 * sum(self.grid.x_range), np.inf, 0.0
+
+    def contains(self, x, z) -> np.ndarray:
+        """Whether the points ``(x, z)`` (``(r, z)`` on rings; d, arrays broadcast) lie
+        in the material: inside the box (closed) and the hopper's walls."""
+        x, z = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(z, dtype=float))
+        (x0, x1), (z0, z1) = self.grid.x_range, self.grid.z_range
+        c, hw, s = self.side_walls()
+        ok = (x >= x0) & (x <= x1) & (z >= z0) & (z <= z1)
+        if np.isfinite(hw):
+            ok &= np.abs(x - c) <= hw + s * (z - z0)
+        return ok
+
     # -- differences ---------------------------------------------------------------------
     def gradient(self, f: np.ndarray, comp: str) -> np.ndarray:
         """Second-order derivative of a cell-centred field along ``comp`` (central
@@ -381,6 +398,9 @@ class AxisymmetricGeometry(Geometry):
     def coords(self):
         return {"z": self.grid.z, "r": self.grid.x}
 
+    def side_walls(self):
+        return 0.0, np.inf, 0.0
+
     @cached_property
     def cell_volumes(self):
         return (2.0 * np.pi * self.grid.spacing**2 * self.grid.x)[None, :]
@@ -462,6 +482,10 @@ class _Hopper:
     @property
     def result_attrs(self):
         return {"hopper_angle": float(self.grid.hopper.angle)}
+
+    def side_walls(self):
+        hop = self.grid.hopper
+        return hop.centre, hop.half_width, hop.slope
 
     def clearance(self, x, z, margin=0.0):
         hop = self.grid.hopper

@@ -29,6 +29,22 @@ def _da(data, grid, units, long_name, **attrs):
         "spotpde_units": units, **attrs})
 
 
+def _geometry_names(g, names):
+    """Cell measure (spot density's denominator) and field names of the grid's shape: a
+    box's ``h**dims`` and names unchanged; rings (``u_r``, ``D_rr``, ..., ring volumes, d**3)
+    and hoppers (the material's part of each cell, inactive cells NaN) otherwise."""
+    geo = g.geometry
+    if geo.uniform_cells:
+        return g.spacing**g.dims, names
+    vol = np.broadcast_to(geo.cell_volumes * geo.material, g.shape)
+    keys = geo.drift_keys + geo.diffusivity_keys
+    comp = {"x": geo.components[0]}
+    renamed = [(key, u, ln.replace(", x component", f", {comp['x']} component")
+                .replace(", xx", f", {comp['x']}{comp['x']}").replace(", xz", f", {comp['x']}z"))
+               for key, (_, u, ln) in zip(keys, names)]
+    return np.where(np.asarray(geo.active) & (vol > 0), vol, np.nan), renamed
+
+
 def measure(result: MCResult, tracer: bool = True) -> xr.Dataset:
     """Fields of a run as an ``xarray.Dataset`` with the continuum result's names.
 
@@ -67,16 +83,18 @@ def measure(result: MCResult, tracer: bool = True) -> xr.Dataset:
         pairs = ("xx", "xz", "zz") if g.dims == 2 else ("xx", "yy", "zz", "xy", "xz", "yz")
         names = ([(f"u_{c}", "d / time", f"particle drift u_p, {c} component") for c in drifts]
                  + [(f"D_{c}", "d**2 / time", f"particle diffusivity D_p, {c}") for c in pairs])
+        h2, names = _geometry_names(g, names)
         for k, (name, units, ln) in enumerate(names):
             f = 1.0 if k < len(drifts) else 0.5
             ds[name] = _da(f * mean[k], g, units, ln + " (Monte Carlo probes)")
             ds[name + "_se"] = _da(f * se[k], g, units, "standard error of " + name)
-        h2 = g.spacing**g.dims
         rb = result.rho_hist[ok] / (result.batch_ticks[ok][lead] * h2)
-        ds["rho_s"] = _da(result.rho_hist.sum(axis=0) / (result.n_ticks * h2), g, f"1 / d**{g.dims}",
+        # rings: spots per unit volume (d**-3); boxes: per d**dims
+        rho_units = "1 / d**3" if g.geometry.curved else f"1 / d**{g.dims}"
+        ds["rho_s"] = _da(result.rho_hist.sum(axis=0) / (result.n_ticks * h2), g, rho_units,
                           "spot density (Monte Carlo)")
         ds["rho_s_se"] = _da(rb.std(axis=0, ddof=1) / math.sqrt(nb) if nb > 1
-                             else np.full(g.shape, np.nan), g, f"1 / d**{g.dims}",
+                             else np.full(g.shape, np.nan), g, rho_units,
                              "standard error of rho_s")
     same_levels = (result.levels.size == g.nz and np.allclose(result.levels, g.z))
     if tracer and result.tracked.size and same_levels:

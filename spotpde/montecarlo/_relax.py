@@ -34,6 +34,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from ._relax3d import relax_all3
+
 __all__ = ["Relax", "DISTRIBUTIONS", "draw_diameters", "relax_packing"]
 
 #: diameter distributions of :func:`draw_diameters`
@@ -466,7 +468,6 @@ def relax_packing(positions, diameters, box, *, relax: Relax | dict | None = Non
     rp = relax_params(rx, d, xc, walls == "reflecting", lid)
     mob = np.ones(len(d), np.int64) if mobile is None else np.asarray(mobile, bool).astype(np.int64)
     if dims == 3:
-        from ._relax3d import relax_all3
 
         lx, lz, ly = (np.ascontiguousarray(P[:, k]) for k in range(3))
         b = np.asarray(box, float)[[0, 1, 4, 5, 2, 3]]  # (x0, x1, y0, y1, z0, z1)

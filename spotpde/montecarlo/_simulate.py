@@ -35,20 +35,22 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 
 from . import _mc_kernels as K
+from ._mc3d import kernel_eval3
+from ..fields._walls import coverage_table
 from ..grid import Grid
 from ..parameters import Orifice, Spots
 from ._particles import blob, lattice, random_packing, tracking
 from ._relax import Relax, particle_diameters, relax_params
+from ._geometry import geometry_particles, runs_in_geometry, simulate_geometry
 from ._settings import case_settings
+from ._result import STEPS, MCResult
 from ._simulate3d import case_particles3d, run3d
-
-STEPS = ("gaussian", "binary")
 
 __all__ = ["STEPS", "CUTOFF", "KernelParams", "MCResult", "simulate", "from_case",
            "kernel_params", "kernel_evaluate"]
@@ -128,7 +130,6 @@ def kernel_evaluate(kp: KernelParams, x, z, *more) -> np.ndarray:
     """The Monte Carlo's own (numba) evaluation of ``w`` at offsets ``(x, z)`` in d, or
     at ``(x, y, z)`` (three arguments, in that order) for a 3D kernel."""
     if kp.dims == 3:
-        from ._mc3d import kernel_eval3
 
         if len(more) != 1:
             raise TypeError("kernel_evaluate: a 3D kernel takes offsets (x, y, z)")
@@ -140,83 +141,6 @@ def kernel_evaluate(kp: KernelParams, x, z, *more) -> np.ndarray:
     out = K.kernel_eval(kp.shape, np.ascontiguousarray(x), np.ascontiguousarray(z),
                         kp.size, kp.size_v, kp.amp, kp.reach[0], kp.reach[1])
     return out.reshape(x.shape)
-
-
-# ---------------------------------------------------------------------------------------
-# Result
-# ---------------------------------------------------------------------------------------
-@dataclass
-class MCResult:
-    """Everything a Monte Carlo run recorded (all lengths in d, times in the case unit).
-
-    Attributes:
-        grid, orifice, spots, kernel (:class:`KernelParams`), rule, gamma, step (Delta),
-            steps ("gaussian"/"binary"), seed, t_end, dt (time per tick), n_ticks.
-        initial: ``(N, 2)`` initial particle positions ``(x, z)`` (3D: ``(N, 3)``,
-            ``(x, z, y)``: the depth last); ``final``: final ones.
-        status: per particle 0 inside, 1 left through the orifice, 2 left through an
-            open side. ``exit_x``, ``exit_t``: where and when it left (NaN if not).
-        tracked: indices of tracked particles. ``times``: snapshot times;
-            ``positions``: ``(n_times, n_tracked, 2)`` (3D: ``(.., 3)``), NaN once a
-            particle has left.
-        levels: crossing heights; ``cross_x``/``cross_t``: ``(n_tracked, n_levels)`` x and
-            time at which each tracked particle first fell through each level (NaN: not).
-        probe: ``(5, n_batch, nz, nx)`` probe sums (see ``_mc_kernels.advance``; 3D:
-            ``(9, n_batch, nz, ny, nx)``, ``_mc3d.advance3``; None without probes);
-            ``rho_hist``: ``(n_batch, nz, nx)`` (3D ``(n_batch, nz, ny, nx)``) spot samples;
-            ``batch_ticks``: ticks per batch.
-        counters: injected spots, spot steps, particle updates, cell-list rebuilds.
-        wall_time, cpu_time: wall-clock and CPU seconds spent in the numba loop.
-        walls: the wall treatment (``"renormalise"`` or ``"truncate"``).
-        relax: the resolved :class:`~spotpde.montecarlo.Relax` (``None``: grains do not
-            interact). diameters: ``(N,)`` grain diameters in d.
-    """
-
-    grid: Grid
-    orifice: Orifice
-    spots: Spots
-    kernel: KernelParams
-    rule: float
-    gamma: float
-    step: float
-    steps: str
-    seed: int
-    t_end: float
-    dt: float
-    n_ticks: int
-    initial: np.ndarray
-    final: np.ndarray
-    status: np.ndarray
-    exit_x: np.ndarray
-    exit_t: np.ndarray
-    tracked: np.ndarray
-    times: np.ndarray
-    positions: np.ndarray
-    levels: np.ndarray
-    cross_x: np.ndarray
-    cross_t: np.ndarray
-    probe: np.ndarray | None
-    rho_hist: np.ndarray | None
-    batch_ticks: np.ndarray
-    counters: dict = field(default_factory=dict)
-    wall_time: float = 0.0
-    cpu_time: float = 0.0
-    walls: str = "renormalise"
-    relax: Relax | None = None
-    diameters: np.ndarray | None = None
-
-    @property
-    def performance(self) -> dict:
-        """Spot steps and particle updates per CPU second of the numba loop.
-
-        CPU (process) time rather than wall time, so that the numbers do not depend on
-        what else the machine runs; the first call of a session includes numba's loading
-        of its cache (or compilation).
-        """
-        ct = max(self.cpu_time, 1e-12)
-        return {"spot_steps_per_second": self.counters["spot_steps"] / ct,
-                "particle_updates_per_second": self.counters["particle_updates"] / ct,
-                "cpu_time": self.cpu_time, "wall_time": self.wall_time}
 
 
 # ---------------------------------------------------------------------------------------
@@ -244,7 +168,9 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
             the probe points, its walls (``"reflecting"``/``"open"``) bound spots and
             particles. A 3D grid (``dims = 3``, e.g. a thin slab with ``y_range`` a few
             d deep) runs the 3D model (``_simulate3d``, docs/packing.md): spots walk in
-            ``x`` and ``y``, the side, front and back walls bound them.
+            ``x`` and ``y``, the side, front and back walls bound them. A wedge hopper,
+            or an axisymmetric grid (cylinder, cone; a 3D kernel, particles ``(N, 3)``
+            as ``(x, z, y)``) runs ``_geometry`` (docs/montecarlo.md 7b).
         orifice: spot source on the floor (``rate`` = Q0 in spots per unit time,
             constant).
         spots: ``drift`` v_s (d per unit time), ``b`` and ``b_par`` (d), constants.
@@ -293,8 +219,9 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
     problems = []
     if probes is None:
         probes = grid.dims == 2
-    if getattr(kernel, "dims", 2) != grid.dims:
-        problems.append(f"kernel: a {getattr(kernel, 'dims', 2)}D kernel in a {grid.dims}D grid")
+    if getattr(kernel, "dims", 2) != grid.geometry.kernel_dims:
+        problems.append(f"kernel: a {getattr(kernel, 'dims', 2)}D kernel in a {grid.dims}D grid"
+                        + (" of rings (needs 3D)" if grid.geometry.curved else ""))
     v_s = _scalar("spots.drift", spots.drift)
     b = _scalar("spots.b", spots.b)
     b_par = _scalar("spots.b_par", spots.b_par)
@@ -343,6 +270,16 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
     skin = 0.5 if skin is None else float(skin)
     cell = max(kp.reach[0], kp.reach[1], 0.25) + skin
     batches = max(1, min(int(batches), n_ticks))
+    if runs_in_geometry(grid):  # wedge hopper, cylinder, cone: _geometry
+        if relax is not None:
+            raise ValueError("relax: packing constraints run in boxes only, not in "
+                             "hoppers or cylinders")
+        return simulate_geometry(
+            grid, orifice, spots, kp, rule=float(rule), gamma=float(gamma), step=step,
+            steps=steps, seed=int(seed), t_end=t_end, dt=dt, n_ticks=n_ticks, Q0=Q0, b0=b0,
+            b_par=b_par, profile=profile, particles=particles, tracked=tracked,
+            records=records, batches=batches, walls=walls, kernel=kernel, progress=progress,
+            probes=bool(probes))
     if grid.dims == 3:
         return run3d(grid, orifice, spots, kp, rule=float(rule), gamma=float(gamma),
                      step=step, steps=steps, seed=int(seed), t_end=t_end, dt=dt,
@@ -357,7 +294,6 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
     tab_x0, tab_dx = 0.0, 0.0
     phi_tab = np.zeros(0)
     if walls == "renormalise" and grid.walls == "reflecting":
-        from ..fields._walls import coverage_table
 
         name = {c: n for n, c in _SHAPE_CODES.items()}[kp.shape]
         tab_x0, tab_dx, phi_tab = coverage_table(
@@ -477,16 +413,18 @@ def from_case(case, *, particles="lattice", spacing: float = 1.0, **kwargs) -> M
             (:func:`random_packing`, phi 0.5), ``"tracer"`` (2000 particles from the
             tracer blob, all tracked), ``None``, or an ``(N, 2)`` array. 3D: a simple
             cubic lattice, :func:`dense_packing` at phi 0.5, no ``"tracer"``; arrays
-            ``(N, 3)`` in columns ``(x, z, y)``.
+            ``(N, 3)`` in columns ``(x, z, y)``. Hoppers and cylinders:
+            ``"lattice"`` is :func:`geometry_particles` (inside the material only).
         **kwargs: passed to :func:`simulate` (``t_end`` defaults to ``case.tracer.t_end``;
             for ``tracer.model = "void"`` the step defaults to 1 d, larger than the void's
             radius, so that a void displaces a given particle at most once).
     """
     grid = case.grid
-    if grid.axisymmetric or grid.hopper is not None:
-        raise ValueError("case: the discrete spot model runs in rectangular boxes; this "
-                         "case is " + ("axisymmetric" if grid.axisymmetric else "a hopper")
-                         + " (domain.coordinates / domain.hopper_angle)")
+    if runs_in_geometry(grid) and isinstance(particles, str):
+        if particles != "lattice":
+            raise ValueError(f"particles: hoppers and cylinders take 'lattice', None or an "
+                             f"array of positions, got {particles!r}")
+        particles = geometry_particles(grid, spacing)
     if grid.dims == 3 and isinstance(particles, str):
         particles = case_particles3d(grid, particles, spacing, kwargs.get("seed", 0))
     if isinstance(particles, str):

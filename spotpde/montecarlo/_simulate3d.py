@@ -25,8 +25,9 @@ from scipy import special
 
 from . import _mc_kernels as K
 from ._mc3d import advance3, build_cells3, make_params3
-from ._particles import tracking
+from ._particles import dense_packing, tracking
 from ._relax import particle_diameters, relax_params
+from ._result import STEPS, MCResult
 
 __all__ = ["run3d", "coverage_table3", "case_particles3d"]
 
@@ -40,7 +41,6 @@ def case_particles3d(grid, name: str, spacing: float = 1.0, seed: int = 0) -> np
                 for lo, hi in (grid.x_range, grid.z_range, grid.y_range)]
         return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     if name == "random":
-        from ._particles import dense_packing
 
         return dense_packing(grid, 0.5, seed=seed)[0]
     raise ValueError(f"particles: unknown {name!r} for a 3D case; valid: 'lattice', "
@@ -114,7 +114,6 @@ def run3d(grid, orifice, spots, kp, *, rule, gamma, step, steps, seed, t_end, dt
     ``(N, 3)`` positions in columns ``(x, z, y)`` (the first two as in 2D, the depth
     last; the order of ``spotpde.analysis.packing``); with ``probes`` the probe sums
     ``(9, batches, nz, ny, nx)`` on the grid's cell centres (``_mc3d.advance3``)."""
-    from ._simulate import STEPS, MCResult
 
     if kp.dims != 3:
         raise ValueError("kernel: the 3D Monte Carlo needs a 3D kernel")

@@ -36,6 +36,7 @@ from typing import Callable, Iterable, Mapping
 import numpy as np
 from scipy import stats
 
+from .. import tracer
 from ..grid import Grid
 
 __all__ = ["replicas", "replica_mean", "t_limit", "zscore_spread", "se_calibration", "discard",
@@ -240,15 +241,20 @@ def particle_density(grid: Grid, points, weights=None) -> np.ndarray:
     ``P0`` of several replicas gives the prediction for the replica average.
 
     Args:
-        grid: 2D or 3D rectangular grid.
+        grid: 2D or 3D rectangular grid, or an axisymmetric grid.
         points: ``(N, 2)`` positions ``(x, z)``, 3D ``(N, 3)`` in columns ``(x, z, y)``
             (the Monte Carlo's order); rows with NaN (gone) are ignored.
+            Axisymmetric grid: ``(N, 2)`` as ``(r, z)`` or the Monte Carlo's ``(N, 3)``
+            ``(x, z, y)``, binned in ``(r, z)`` and divided by the ring volumes
+            ``2 pi r h**2`` (the continuum tracer's ``P``, per d**3).
         weights: optional per-point weights (default 1).
 
     Raises:
         ValueError: wrong shape, or no point inside the grid.
     """
     p = np.asarray(points, dtype=float)
+    if grid.geometry.curved and p.ndim == 2 and p.shape[1] == 3:   # (x, z, y) -> (r, z)
+        p = np.column_stack([np.hypot(p[:, 0], p[:, 2]), p[:, 1]])
     if p.ndim != 2 or p.shape[1] != grid.dims:
         raise ValueError(f"points: need an (N, {grid.dims}) array of "
                          f"{'(x, z)' if grid.dims == 2 else '(x, z, y)'}, got shape {p.shape}")
@@ -265,6 +271,8 @@ def particle_density(grid: Grid, points, weights=None) -> np.ndarray:
     total = H.sum()
     if not total > 0:
         raise ValueError("points: no particle inside the grid")
+    if grid.geometry.curved:   # rings: per unit volume, sum(P * ring volumes) = 1
+        return H / (total * grid.geometry.cell_volumes)
     return H / (total * grid.cell_volume)
 
 
@@ -294,7 +302,6 @@ def continuum_drainage(grid: Grid, fields: Mapping[str, np.ndarray], P0: np.ndar
     ``D_zz``) from ``P0`` (:func:`particle_density`, or ``pipeline.initial_density``);
     returns ``outflow(t) / integral(P0)``.
     """
-    from .. import tracer
 
     P0 = np.asarray(P0, dtype=float)
     mass = float(P0.sum() * grid.cell_volume)

@@ -70,16 +70,6 @@ LAZY_INTERNAL = {
     ("spotpde.density.spot_density", "spotpde.density._pde"): "py-pde cross-check solver",
 }
 
-#: Left as they are: in-function imports in the Monte Carlo, which another branch is
-#: rewriting; moving them to the top is the follow-up once it lands.
-KNOWN_LEFT = {
-    ("spotpde.montecarlo._relax", "spotpde.montecarlo._relax3d"),
-    ("spotpde.montecarlo._simulate", "spotpde.montecarlo._mc3d"),
-    ("spotpde.montecarlo._simulate", "spotpde.fields._walls"),
-    ("spotpde.montecarlo._simulate3d", "spotpde.montecarlo._simulate"),
-    ("spotpde.montecarlo._simulate3d", "spotpde.montecarlo._particles"),
-    ("spotpde.montecarlo.mcstats", "spotpde.tracer"),
-}
 
 
 def _module(path):
@@ -151,7 +141,7 @@ def _allowed(module, target):
     root = target.split(".")[0]
     if root in LAZY_THIRD_PARTY:
         return True
-    if (module, target) in LAZY_INTERNAL or (module, target) in KNOWN_LEFT:
+    if (module, target) in LAZY_INTERNAL:
         return True
     # app and the command line load the stages (numba kernels), Dask and their own
     # heavy modules on demand: ``spotpde check`` and ``spotpde plot`` start without them
@@ -166,14 +156,6 @@ def test_imports_inside_functions_are_the_listed_lazy_ones():
     # nothing from the standard library hides in a function
     assert not [f"{m}:{line} -> {t}" for m, t, line in inside
                 if t.split(".")[0] in sys.stdlib_module_names]
-
-
-@pytest.mark.parametrize("pair", sorted(KNOWN_LEFT))
-def test_known_leftovers_are_still_there(pair):
-    """Each listed leftover is a real in-function import (the list does not go stale)."""
-    module, target = pair
-    present = {(m, t) for m, t, _, fn in IMPORTS if fn}
-    assert pair in present, f"{module} -> {target} moved: drop it from KNOWN_LEFT"
 
 
 # -- one place for the shared tables and terms ------------------------------------------------

@@ -190,23 +190,12 @@ CONVERTED = tuple(sorted(p.name for p in PACKAGE.iterdir()
                          if p.is_dir() and (p / "__init__.py").exists() and p.name != "geometry")
                   + sorted(p.name for p in PACKAGE.glob("*.py")))
 
-#: The one known exception: montecarlo's ``from_case`` refuses axisymmetric and hopper
-#: cases by reading the grid's flags (its replacement is under way elsewhere); flag reads
-#: anywhere else in that module still fail the test.
-KNOWN_FLAG_READS = {"montecarlo/_simulate.py": {"from_case"}}
-
-
-def _flag_tests(path, allowed=()):
+def _flag_tests(path):
     """Lines reading ``.axisymmetric`` / ``.hopper`` of anything but ``self``, or comparing
-    ``.coordinates`` (copying it into result metadata is not a test), outside the
-    functions named in ``allowed``."""
+    ``.coordinates`` (copying it into result metadata is not a test)."""
     tree = ast.parse(path.read_text())
-    skip = {id(n) for f in ast.walk(tree)
-            if isinstance(f, ast.FunctionDef) and f.name in allowed for n in ast.walk(f)}
     lines = []
     for n in ast.walk(tree):
-        if id(n) in skip:
-            continue
         if isinstance(n, ast.Attribute) and n.attr in ("axisymmetric", "hopper") \
                 and not (isinstance(n.value, ast.Name) and n.value.id == "self"):
             lines.append(n.lineno)
@@ -232,7 +221,7 @@ def test_converted_stages_read_no_geometry_flag(package):
     reads = {}
     for p in files:
         rel = p.relative_to(PACKAGE).as_posix()
-        reads[rel] = _flag_tests(p, KNOWN_FLAG_READS.get(rel, ()))
+        reads[rel] = _flag_tests(p)
     assert {k: v for k, v in reads.items() if v} == {}
 
 
