@@ -20,7 +20,8 @@ computes for minutes and then fails to write, and never destroys data:
 :func:`handle_termination` makes SIGTERM and SIGHUP behave like Ctrl-C: they raise
 :class:`Terminated` (a :class:`KeyboardInterrupt`), so the same clean-up runs (the
 temporary file of an atomic write is removed) and the command exits with status
-128 + the signal number. :class:`held_signals` holds these signals back for a block that
+128 + the signal number; :func:`check_signals` raises a stop signal again whose exception
+C code dropped (a handler that ran inside a ctypes callback). :class:`held_signals` holds these signals back for a block that
 must not be cut halfway (a netCDF write inside xarray's file lock, the clean-up of a
 temporary file) and acts on them when the block is done.
 """
@@ -31,6 +32,7 @@ import errno
 import os
 import signal
 import stat
+import sys
 import tempfile
 import threading
 from collections.abc import Iterable
@@ -47,21 +49,66 @@ class Terminated(KeyboardInterrupt):
         self.signum = int(signum)
 
 
-def _raise_terminated(signum, frame):  # noqa: ARG001 - signal handler signature
-    raise Terminated(signum)
+#: Stop signals whose handler has run. A handler runs between two bytecodes wherever the
+#: main thread is, also inside a Python function that C code calls back through ctypes
+#: (numba's cache notifier, called by llvmlite while a kernel compiles). ctypes prints
+#: and drops an exception raised there, so the run would go on as if nothing happened;
+#: :func:`check_signals` raises it again at the command's next checkpoint.
+_PENDING: list[int] = []
+
+
+def _stop(signum, frame):  # noqa: ARG001 - signal handler signature
+    _PENDING.append(int(signum))
+    raise _exception(signum)
+
+
+def _exception(signum) -> KeyboardInterrupt:
+    return KeyboardInterrupt() if signum == signal.SIGINT else Terminated(signum)
+
+
+def _quiet_unraisable(previous):
+    """``sys.unraisablehook`` that stays silent about a stop signal's exception dropped
+    by C code (it is recorded and raised again) and passes everything else on."""
+    def hook(unraisable):
+        if isinstance(unraisable.exc_value, KeyboardInterrupt) and _PENDING:
+            return
+        previous(unraisable)
+
+    hook.__wrapped__ = previous
+    return hook
+
+
+def check_signals() -> None:
+    """Raise again the first stop signal whose exception was dropped on its way (see
+    :data:`_PENDING`): ``KeyboardInterrupt`` for SIGINT, :class:`Terminated` otherwise.
+    The command line calls it at every progress report and once the result is written."""
+    if _PENDING:
+        signum = _PENDING[0]
+        _PENDING.clear()
+        raise _exception(signum)
 
 
 def handle_termination() -> None:
-    """Install handlers raising :class:`Terminated` for SIGTERM and SIGHUP (main thread
-    only; signals another program ignores stay ignored)."""
-    for name in ("SIGTERM", "SIGHUP"):
+    """Make SIGTERM and SIGHUP raise :class:`Terminated`, and SIGINT ``KeyboardInterrupt``
+    as before, each recorded for :func:`check_signals` (main thread only; signals another
+    program ignores stay ignored, and a SIGINT handler other than Python's default is
+    kept). Forgets signals recorded by an earlier command of the same process. The
+    exception C code drops is not printed (:func:`_quiet_unraisable`): the signal is acted
+    upon at the next checkpoint, with the command's one line."""
+    _PENDING.clear()
+    if getattr(sys.unraisablehook, "__wrapped__", None) is None:
+        sys.unraisablehook = _quiet_unraisable(sys.unraisablehook)
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
         sig = getattr(signal, name, None)
         if sig is None:
             continue
         try:
-            if signal.getsignal(sig) == signal.SIG_IGN:   # e.g. under nohup
+            current = signal.getsignal(sig)
+            if current == signal.SIG_IGN:   # e.g. under nohup
                 continue
-            signal.signal(sig, _raise_terminated)
+            if sig == signal.SIGINT and current is not signal.default_int_handler:
+                continue
+            signal.signal(sig, _stop)
         except ValueError:   # not the main thread
             return
 

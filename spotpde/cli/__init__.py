@@ -23,8 +23,8 @@ from tqdm import tqdm
 
 from .._version import __version__
 from . import _fit
-from ..app._outputs import (FIGURE_FORMATS, Terminated, file_identity, handle_termination,
-                       held_signals, output_problem)
+from ..app._outputs import (FIGURE_FORMATS, Terminated, check_signals, file_identity,
+                            handle_termination, held_signals, output_problem)
 from ..errors import CaseError, NumericalError, WriteError
 
 EXIT_OK, EXIT_NUMERICAL, EXIT_INVALID, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -52,7 +52,9 @@ class Progress:
         self.last = -1
 
     def __call__(self, stage: str, fraction: float) -> None:
-        """Report ``fraction`` (0..1) of ``stage`` done (the pipeline's callback)."""
+        """Report ``fraction`` (0..1) of ``stage`` done (the pipeline's callback); a stop
+        signal whose exception was dropped is raised here (``check_signals``)."""
+        check_signals()
         pct = int(round(100 * min(max(fraction, 0.0), 1.0)))
         if stage != self.stage:
             self.close()
@@ -209,6 +211,7 @@ def cmd_run(args) -> int:
                 warm.wait()             # the tracer kernel is in numba's cache now
 
         ds = run(case, progress=progress, path=out, on_fields=on_fields)
+        check_signals()     # a signal dropped in the last stage: the file is complete
     finally:
         if warm is not None:
             warm.stop()

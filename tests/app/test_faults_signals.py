@@ -330,3 +330,63 @@ def test_full_cache_directory_warns_once_naming_it_and_runs(tmp_path):
     assert wrote.startswith("spotpde: wrote")
     assert sio.read_netcdf(tmp_path / "r.nc")["rho_s"].shape == (16, 16)
     assert not list(cache.rglob("*.nbi"))
+
+
+# -- a signal whose exception C code dropped ------------------------------------------------
+
+#: hooks: SIGTERM arrives while the spot density is solved, inside a Python function that
+#: C code calls through ctypes, as numba's cache notifier is called by llvmlite while a
+#: kernel compiles: ctypes drops the handler's exception (the fault CI met once)
+SWALLOWED = """
+import ctypes
+import spotpde.density.spot_density as sd
+_solve = sd.solve
+def solve(*args, **kwargs):
+    ctypes.CFUNCTYPE(None)(lambda: signal.raise_signal(signal.SIGTERM))()
+    return _solve(*args, **kwargs)
+sd.solve = solve
+"""
+
+
+def test_a_signal_dropped_inside_a_c_callback_still_stops_the_run(tmp_path):
+    """The next progress report acts on it: exit 143, one line, no file."""
+    (tmp_path / "c.toml").write_text(FIELDS)
+    proc = driven(SWALLOWED, "run", "c.toml", "-o", "r.nc", cwd=tmp_path)
+    assert proc.returncode == 128 + signal.SIGTERM, proc.stderr
+    line = [ln for ln in proc.stderr.splitlines() if not ln.startswith("spotpde: spot")]
+    assert "Traceback" not in proc.stderr and "Exception ignored" not in proc.stderr
+    assert line == ["spotpde: terminated by signal 15, no result written"], proc.stderr
+    assert not (tmp_path / "r.nc").exists() and leftovers(tmp_path) == []
+
+
+def test_a_dropped_signal_without_progress_reports_is_acted_on_after_the_write(tmp_path):
+    """``-q``: no progress reports; the run ends, its file is complete, and the command
+    still stops with 143 and says so."""
+    (tmp_path / "c.toml").write_text(FIELDS)
+    proc = driven(SWALLOWED, "run", "c.toml", "-o", "r.nc", "-q", cwd=tmp_path)
+    assert proc.returncode == 128 + signal.SIGTERM, proc.stderr
+    assert one_line(proc) == f"spotpde: terminated by signal 15; {tmp_path / 'r.nc'} is complete"
+    assert (tmp_path / "r.nc").stat().st_size > 0 and leftovers(tmp_path) == []
+
+
+def test_check_signals_raises_what_a_c_callback_dropped():
+    """In process: the handler's exception dies in the ctypes callback; check_signals
+    raises it again (Terminated for SIGTERM, KeyboardInterrupt for SIGINT), once."""
+    import ctypes
+
+    from spotpde.app import _outputs
+
+    saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    hook = sys.unraisablehook
+    try:
+        _outputs.handle_termination()
+        for sig, exc in ((signal.SIGTERM, _outputs.Terminated), (signal.SIGINT, KeyboardInterrupt)):
+            ctypes.CFUNCTYPE(None)(lambda s=sig: signal.raise_signal(s))()
+            with pytest.raises(exc):
+                _outputs.check_signals()
+            _outputs.check_signals()        # once only: nothing left to raise
+    finally:
+        for s, h in saved.items():
+            signal.signal(s, h)
+        sys.unraisablehook = hook
+        _outputs._PENDING.clear()
