@@ -216,9 +216,47 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
     Raises:
         ValueError: invalid parameters (the message names the argument).
     """
-    problems = []
     if probes is None:
         probes = grid.dims == 2
+    v_s, b, b_par, Q0 = _constants(grid, orifice, spots, kernel, rule, gamma, steps, t_end,
+                                   n_spots, walls)
+    relax = Relax.of(relax)
+    kp = kernel_params(kernel, cutoff)
+    if t_end is None:
+        t_end = float(n_spots) / Q0
+    if step is None:
+        step = 0.25 * min(kp.size_v, kp.reach[1])
+    step = float(step)
+    if not (t_end > 0 and step > 0):
+        raise ValueError(f"t_end: must be > 0 (and step > 0), got t_end={t_end}, step={step}")
+    dt = step / v_s
+    n_ticks = max(1, int(round(t_end / dt)))
+    t_end = n_ticks * dt
+    b0 = b * (1.0 - gamma) / (1.0 + gamma)
+    profile = K.PROFILE_POINT if orifice.width <= 0 else (
+        K.PROFILE_UNIFORM if orifice.profile == "uniform" else K.PROFILE_GAUSSIAN)
+    skin = 0.5 if skin is None else float(skin)
+    cell = max(kp.reach[0], kp.reach[1], 0.25) + skin
+    batches = max(1, min(int(batches), n_ticks))
+    run = dict(rule=float(rule), gamma=float(gamma), step=step, steps=steps, seed=int(seed),
+               t_end=t_end, dt=dt, n_ticks=n_ticks, Q0=Q0, b0=b0, b_par=b_par,
+               profile=profile, particles=particles, tracked=tracked, records=records,
+               batches=batches, walls=walls, progress=progress, probes=bool(probes))
+    if runs_in_geometry(grid):  # wedge hopper, cylinder, cone: _geometry
+        if relax is not None:
+            raise ValueError("relax: packing constraints run in boxes only, not in "
+                             "hoppers or cylinders")
+        return simulate_geometry(grid, orifice, spots, kp, kernel=kernel, **run)
+    run.update(skin=skin, cell=cell, levels=levels, relax=relax, diameters=diameters)
+    if grid.dims == 3:
+        return run3d(grid, orifice, spots, kp, relax_reach=_relax_reach(kp), **run)
+    return _run_box(grid, orifice, spots, kp, v_s=v_s, **run)
+
+
+def _constants(grid, orifice, spots, kernel, rule, gamma, steps, t_end, n_spots, walls):
+    """``(v_s, b, b_par, Q0)`` of a run (d per unit time, d, d, spots per unit time), or
+    one ValueError naming every bad argument."""
+    problems = []
     if getattr(kernel, "dims", 2) != grid.geometry.kernel_dims:
         problems.append(f"kernel: a {getattr(kernel, 'dims', 2)}D kernel in a {grid.dims}D grid"
                         + (" of rings (needs 3D)" if grid.geometry.curved else ""))
@@ -250,54 +288,22 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
         problems.append(f'walls: must be one of "renormalise", "truncate", got {walls!r}')
     if problems:
         raise ValueError("; ".join(problems))
-    relax = Relax.of(relax)
-    kp = kernel_params(kernel, cutoff)
-    if t_end is None:
-        t_end = float(n_spots) / Q0
-    if step is None:
-        step = 0.25 * min(kp.size_v, kp.reach[1])
-    step = float(step)
-    if not (t_end > 0 and step > 0):
-        raise ValueError(f"t_end: must be > 0 (and step > 0), got t_end={t_end}, step={step}")
-    dt = step / v_s
-    n_ticks = max(1, int(round(t_end / dt)))
-    t_end = n_ticks * dt
-    b0 = b * (1.0 - gamma) / (1.0 + gamma)
+    return v_s, b, b_par, Q0
+
+
+def _box_params(grid, orifice, kp, *, rule, gamma, step, steps, dt, n_ticks, Q0, b0, b_par,
+                profile, skin, cell, walls, batches, probes):
+    """The numba loop's constants (:func:`_mc_kernels.make_params`) of a 2D box, with the
+    wall-coverage table of renormalised reflecting walls."""
     x0, x1 = grid.x_range
     z0, z1 = grid.z_range
-    profile = K.PROFILE_POINT if orifice.width <= 0 else (
-        K.PROFILE_UNIFORM if orifice.profile == "uniform" else K.PROFILE_GAUSSIAN)
-    skin = 0.5 if skin is None else float(skin)
-    cell = max(kp.reach[0], kp.reach[1], 0.25) + skin
-    batches = max(1, min(int(batches), n_ticks))
-    if runs_in_geometry(grid):  # wedge hopper, cylinder, cone: _geometry
-        if relax is not None:
-            raise ValueError("relax: packing constraints run in boxes only, not in "
-                             "hoppers or cylinders")
-        return simulate_geometry(
-            grid, orifice, spots, kp, rule=float(rule), gamma=float(gamma), step=step,
-            steps=steps, seed=int(seed), t_end=t_end, dt=dt, n_ticks=n_ticks, Q0=Q0, b0=b0,
-            b_par=b_par, profile=profile, particles=particles, tracked=tracked,
-            records=records, batches=batches, walls=walls, kernel=kernel, progress=progress,
-            probes=bool(probes))
-    if grid.dims == 3:
-        return run3d(grid, orifice, spots, kp, rule=float(rule), gamma=float(gamma),
-                     step=step, steps=steps, seed=int(seed), t_end=t_end, dt=dt,
-                     n_ticks=n_ticks, Q0=Q0, b0=b0, b_par=b_par, profile=profile, skin=skin,
-                     cell=cell, particles=particles, tracked=tracked, records=records,
-                     levels=levels, progress=progress, walls=walls, relax=relax,
-                     diameters=diameters, relax_reach=_relax_reach(kp), probes=bool(probes),
-                     batches=batches)
-    ncx = max(1, int(math.ceil((x1 - x0) / cell)))
-    ncz = max(1, int(math.ceil((z1 - z0) / cell)))
-
     tab_x0, tab_dx = 0.0, 0.0
-    phi_tab = np.zeros(0)
     if walls == "renormalise" and grid.walls == "reflecting":
-
         name = {c: n for n, c in _SHAPE_CODES.items()}[kp.shape]
         tab_x0, tab_dx, phi_tab = coverage_table(
             name, kp.size, kp.size_v, kp.amp, kp.reach, x0, x1)
+    else:
+        phi_tab = np.zeros(0)
     prm = K.make_params(
         x0=x0, x1=x1, z0=z0, z1=z1, xc=orifice.x, width=orifice.width, rate=Q0 * dt,
         step=step, sigx=math.sqrt(2.0 * b0 * step), sigz=math.sqrt(2.0 * b_par * step),
@@ -306,10 +312,22 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
         probe_x0=grid.x[0], probe_z0=grid.z[0], probe_h=grid.spacing, dt=dt,
         tab_x0=tab_x0, tab_dx=tab_dx, shape=kp.shape, profile=profile,
         walls=K.WALLS_OPEN if grid.walls == "open" else K.WALLS_REFLECTING,
-        steps=STEPS.index(steps), ncx=ncx, ncz=ncz, pnx=grid.nx, pnz=grid.nz,
+        steps=STEPS.index(steps), ncx=max(1, int(math.ceil((x1 - x0) / cell))),
+        ncz=max(1, int(math.ceil((z1 - z0) / cell))), pnx=grid.nx, pnz=grid.nz,
         n_batch=batches, ticks_total=n_ticks, probes=int(bool(probes)))
+    return prm, phi_tab
 
-    # particles
+
+def _run_box(grid, orifice, spots, kp, *, v_s, rule, gamma, step, steps, seed, t_end, dt,
+             n_ticks, Q0, b0, b_par, profile, particles, tracked, records, batches, walls,
+             progress, probes, skin, cell, levels, relax, diameters) -> MCResult:
+    """The 2D box: particles, tracking and probes set up, the numba loop run in chunks
+    (:func:`_advance`), the record assembled."""
+    z0, z1 = grid.z_range
+    prm, phi_tab = _box_params(grid, orifice, kp, rule=rule, gamma=gamma, step=step,
+                               steps=steps, dt=dt, n_ticks=n_ticks, Q0=Q0, b0=b0,
+                               b_par=b_par, profile=profile, skin=skin, cell=cell,
+                               walls=walls, batches=batches, probes=probes)
     if particles is None:
         particles = np.zeros((0, 2))
     P = np.asarray(particles, dtype=float).reshape(-1, 2)
@@ -318,76 +336,79 @@ def simulate(grid: Grid, orifice: Orifice, spots: Spots, kernel, rule: float = 0
     pz = np.ascontiguousarray(P[:, 1]).copy()
     status = np.zeros(n, np.int64)
     status[pz < z0] = K.P_ORIFICE
-    moved = np.zeros(n)
     diam = particle_diameters(n, relax, diameters, seed)
     if relax is not None:
         relax = relax.resolved(_relax_reach(kp))
     rp = relax_params(relax, diam, orifice.x, grid.walls == "reflecting")
-    blk = np.zeros(max(n, 1), np.int64)
-    old = np.zeros((max(n, 1), 2))
-    cell_start = np.zeros(ncx * ncz + 1, np.int64)
-    cell_idx = np.zeros(max(n, 1), np.int64)
-    if n:
-        K.build_cells(px, pz, status, x0, z0, cell, ncx, ncz, cell_start, cell_idx)
     bk = tracking(tracked, n, records, n_ticks, grid.z if levels is None else levels,
                   lambda i: pz[i], 2)
-    tracked, track_slot, rec_ticks, tpos, levels, lev_next, cross_x, cross_t, exit_x, exit_t = (
-        bk[k] for k in ("tracked", "track_slot", "rec_ticks", "tpos", "levels", "lev_next",
-                        "cross_x", "cross_t", "exit_x", "exit_t"))
     if probes:
         probe = np.zeros((5, batches, grid.nz, grid.nx))
         rho_hist = np.zeros((batches, grid.nz, grid.nx))
     else:
         probe = np.zeros((5, 1, 1, 1))
         rho_hist = np.zeros((1, 1, 1))
-
     # spots: capacity for the expected number in flight, grown on demand
-    transit = (z1 - z0) / v_s
-    mean_active = Q0 * transit
+    mean_active = Q0 * (z1 - z0) / v_s
     cap = int(mean_active * 1.2 + 10.0 * math.sqrt(mean_active) + 64)
-    sx = np.zeros(cap)
-    sz = np.zeros(cap)
-    sxi = np.zeros(cap)
-    srel = np.zeros((cap, 3))
-    cnt = np.zeros(K.NC, np.int64)
-    cnt[K.C_PENDING] = -1
-
     K.seed(int(seed) % (2**32))
-    chunk = max(1, n_ticks // 200)
-    wall = 0.0
-    cpu = 0.0
-    while cnt[K.C_TICK] < n_ticks:
-        todo = min(chunk, n_ticks - cnt[K.C_TICK])
-        t0 = time.perf_counter()
-        c0 = time.process_time()
-        K.advance(prm, cnt, todo, sx, sz, sxi, px, pz, status, moved, cell_start, cell_idx,
-                  track_slot, tpos, rec_ticks, levels, lev_next, cross_x, cross_t, exit_x, exit_t,
-                  probe, rho_hist, phi_tab, rp, diam, srel, blk, old)
-        wall += time.perf_counter() - t0
-        cpu += time.process_time() - c0
-        if cnt[K.C_PENDING] >= 0:  # spot arrays full: grow and carry on
-            cap *= 2
-            sx, sz, sxi = (np.concatenate([a, np.zeros(a.size)]) for a in (sx, sz, sxi))
-            srel = np.concatenate([srel, np.zeros_like(srel)])
-        if progress is not None:
-            progress(cnt[K.C_TICK] / n_ticks)
-
+    cnt, wall, cpu = _advance(prm, n_ticks, cap, px, pz, status, bk, probe, rho_hist,
+                              phi_tab, rp, diam, progress)
     batch_of_tick = np.arange(n_ticks) * batches // n_ticks
-    batch_ticks = np.bincount(batch_of_tick, minlength=batches)
     return MCResult(
         grid=grid, orifice=orifice, spots=spots, kernel=kp, rule=float(rule), gamma=float(gamma),
         step=step, steps=steps, seed=int(seed), t_end=t_end, dt=dt, n_ticks=n_ticks,
         initial=P.copy(), final=np.column_stack([px, pz]), status=status,
-        exit_x=exit_x, exit_t=exit_t, tracked=tracked, times=(rec_ticks + 1) * dt,
-        positions=tpos, levels=levels, cross_x=cross_x, cross_t=cross_t,
+        exit_x=bk["exit_x"], exit_t=bk["exit_t"], tracked=bk["tracked"],
+        times=(bk["rec_ticks"] + 1) * dt, positions=bk["tpos"], levels=bk["levels"],
+        cross_x=bk["cross_x"], cross_t=bk["cross_t"],
         probe=probe if probes else None, rho_hist=rho_hist if probes else None,
-        batch_ticks=batch_ticks,
+        batch_ticks=np.bincount(batch_of_tick, minlength=batches),
         counters={"spots_injected": int(cnt[K.C_INJECTED]), "spot_steps": int(cnt[K.C_STEPS]),
                   "particle_updates": int(cnt[K.C_UPDATES]),
                   "cell_rebuilds": int(cnt[K.C_REBUILDS]), "spots_removed": int(cnt[K.C_REMOVED]),
                   "relaxations": int(cnt[K.C_RELAXATIONS]), "grains_relaxed": int(cnt[K.C_RELAXED])},
         wall_time=wall, cpu_time=cpu, walls=walls, relax=relax, diameters=diam,
     )
+
+
+def _advance(prm, n_ticks, cap, px, pz, status, bk, probe, rho_hist, phi_tab, rp, diam,
+             progress):
+    """Run the numba loop (:func:`_mc_kernels.advance`) over all ``n_ticks`` in chunks of
+    about 1/200 of the run (progress between them), doubling the spot arrays from ``cap``
+    when they fill. Returns ``(counters, wall seconds, CPU seconds)``; particles,
+    tracking and probes are updated in place."""
+    n = px.size
+    moved = np.zeros(n)
+    blk = np.zeros(max(n, 1), np.int64)
+    old = np.zeros((max(n, 1), 2))
+    cell_start = np.zeros(prm.ncx * prm.ncz + 1, np.int64)
+    cell_idx = np.zeros(max(n, 1), np.int64)
+    if n:
+        K.build_cells(px, pz, status, prm.x0, prm.z0, prm.cell, prm.ncx, prm.ncz,
+                      cell_start, cell_idx)
+    sx, sz, sxi = np.zeros(cap), np.zeros(cap), np.zeros(cap)
+    srel = np.zeros((cap, 3))
+    cnt = np.zeros(K.NC, np.int64)
+    cnt[K.C_PENDING] = -1
+    chunk = max(1, n_ticks // 200)
+    wall = cpu = 0.0
+    while cnt[K.C_TICK] < n_ticks:
+        todo = min(chunk, n_ticks - cnt[K.C_TICK])
+        t0 = time.perf_counter()
+        c0 = time.process_time()
+        K.advance(prm, cnt, todo, sx, sz, sxi, px, pz, status, moved, cell_start, cell_idx,
+                  bk["track_slot"], bk["tpos"], bk["rec_ticks"], bk["levels"], bk["lev_next"],
+                  bk["cross_x"], bk["cross_t"], bk["exit_x"], bk["exit_t"],
+                  probe, rho_hist, phi_tab, rp, diam, srel, blk, old)
+        wall += time.perf_counter() - t0
+        cpu += time.process_time() - c0
+        if cnt[K.C_PENDING] >= 0:  # spot arrays full: grow and carry on
+            sx, sz, sxi = (np.concatenate([a, np.zeros(a.size)]) for a in (sx, sz, sxi))
+            srel = np.concatenate([srel, np.zeros_like(srel)])
+        if progress is not None:
+            progress(cnt[K.C_TICK] / n_ticks)
+    return cnt, wall, cpu
 
 
 def _relax_reach(kp: KernelParams) -> float:
