@@ -104,8 +104,14 @@ class Relax:
 
     @classmethod
     def of(cls, value) -> "Relax | None":
-        """``None`` (no relaxation), a :class:`Relax`, or a dict of its field names."""
-        if value is None or isinstance(value, Relax):
+        """``None`` or ``False`` (no relaxation), ``True`` (the defaults), a
+        :class:`Relax`, or a dict of its field names: the values the case table's
+        ``[montecarlo] relax`` takes."""
+        if value is None or value is False:
+            return None
+        if value is True:
+            return cls()
+        if isinstance(value, Relax):
             return value
         if isinstance(value, dict):
             names = {f.name for f in fields(cls)}
@@ -113,7 +119,8 @@ class Relax:
             if unknown:
                 raise ValueError(f"relax: unknown keys {unknown}; valid: {sorted(names)}")
             return cls(**value)
-        raise TypeError(f"relax: must be None, a Relax or a dict, got {type(value).__name__}")
+        raise TypeError("relax: must be None, True, False, a Relax or a dict, got "
+                        f"{type(value).__name__}")
 
     def resolved(self, kernel_radius: float) -> "Relax":
         """A copy with ``radius`` filled in from the kernel's (d)."""

@@ -134,6 +134,8 @@ def test_relax_arguments_are_checked():
         mc.Relax(alpha=0.9)
     with pytest.raises(TypeError, match="^relax"):
         mc.Relax.of(3)
+    # the case table's values: true (the defaults) and false (none)
+    assert mc.Relax.of(True) == mc.Relax() and mc.Relax.of(False) is None
     with pytest.raises(ValueError, match="^diameters"):
         g = Grid(2, (-3.0, 3.0), (0.0, 6.0), 1.0)
         mc.simulate(g, Orifice(width=2.0, rate=1.0), Spots(drift=1.0, b=1.0),
