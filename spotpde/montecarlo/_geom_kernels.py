@@ -26,7 +26,8 @@ from numba import njit
 from ._mc3d import kernel_w3
 from ._mc_kernels import (C_INJECTED, C_NACTIVE, C_PENDING, C_REBUILDS, C_REMOVED, C_STEPS,
                           C_TICK, C_UPDATES, P_IN, P_ORIFICE, PROFILE_POINT, PROFILE_UNIFORM,
-                          first_direction, kernel_w, next_direction, persistence, typed)
+                          first_direction, kernel_w, next_direction, persistence,
+                          sort_into_cells, typed)
 
 
 class GeomParams(NamedTuple):
@@ -167,26 +168,11 @@ def inv_coverage(prm, phi_tab, s, z):
 @njit(cache=True)
 def build_cells(prm, px, py, pz, status, cell_start, cell_idx):
     """Counting sort of the points with ``status == P_IN`` into the cell list."""
-    nc = prm.ncx * prm.ncy * prm.ncz
-    for c in range(nc + 1):
-        cell_start[c] = 0
     n = px.size
     cid = np.empty(n, np.int64)
     for i in range(n):
-        if status[i] != P_IN:
-            cid[i] = -1
-            continue
-        c = _cell_of(prm, px[i], py[i], pz[i])
-        cid[i] = c
-        cell_start[c + 1] += 1
-    for c in range(nc):
-        cell_start[c + 1] += cell_start[c]
-    fill = cell_start[:nc].copy()
-    for i in range(n):
-        c = cid[i]
-        if c >= 0:
-            cell_idx[fill[c]] = i
-            fill[c] += 1
+        cid[i] = _cell_of(prm, px[i], py[i], pz[i]) if status[i] == P_IN else -1
+    sort_into_cells(cid, prm.ncx * prm.ncy * prm.ncz, cell_start, cell_idx)
 
 
 @njit(cache=True, inline="always")

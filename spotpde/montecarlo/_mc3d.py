@@ -25,7 +25,7 @@ from ._mc_kernels import (C_INJECTED, C_NACTIVE, C_PENDING, C_REBUILDS, C_RELAXA
                           C_RELAXED, C_REMOVED, C_STEPS, C_TICK, C_UPDATES, P_IN, P_ORIFICE,
                           P_SIDE, PROFILE_POINT, PROFILE_UNIFORM,
                           SHAPE_GAUSSIAN, SHAPE_UNIFORM, WALLS_OPEN, first_direction,
-                          next_direction, persistence, typed)
+                          next_direction, persistence, sort_into_cells, typed)
 from ._relax3d import relax_block3
 
 
@@ -130,9 +130,6 @@ def kernel_eval3(shape, x, y, z, size, size_v, amp, reach_h, reach_v):
 def build_cells3(px, py, pz, status, x0, y0, z0, cell, ncx, ncy, ncz, cell_start, cell_idx):
     """Counting sort of the particles still in the box into cubic cells of side ``cell``
     (index ``(cz ncy + cy) ncx + cx``; outside particles clamped into the edge cells)."""
-    ncell = ncx * ncy * ncz
-    for c in range(ncell + 1):
-        cell_start[c] = 0
     n = px.size
     cid = np.empty(n, np.int64)
     for i in range(n):
@@ -142,17 +139,8 @@ def build_cells3(px, py, pz, status, x0, y0, z0, cell, ncx, ncy, ncz, cell_start
         cx = min(max(int(math.floor((px[i] - x0) / cell)), 0), ncx - 1)
         cy = min(max(int(math.floor((py[i] - y0) / cell)), 0), ncy - 1)
         cz = min(max(int(math.floor((pz[i] - z0) / cell)), 0), ncz - 1)
-        c = (cz * ncy + cy) * ncx + cx
-        cid[i] = c
-        cell_start[c + 1] += 1
-    for c in range(ncell):
-        cell_start[c + 1] += cell_start[c]
-    fill = cell_start[:ncell].copy()
-    for i in range(n):
-        c = cid[i]
-        if c >= 0:
-            cell_idx[fill[c]] = i
-            fill[c] += 1
+        cid[i] = (cz * ncy + cy) * ncx + cx
+    sort_into_cells(cid, ncx * ncy * ncz, cell_start, cell_idx)
 
 
 @njit(cache=True, inline="always")

@@ -162,9 +162,6 @@ def build_cells(px, pz, status, x0, z0, cell, ncx, ncz, cell_start, cell_idx):
     Particles outside the cell range are clamped into the edge cells (queries clamp the
     same way, so nobody within reach is missed).
     """
-    ncell = ncx * ncz
-    for c in range(ncell + 1):
-        cell_start[c] = 0
     n = px.size
     cid = np.empty(n, np.int64)
     for i in range(n):
@@ -175,13 +172,24 @@ def build_cells(px, pz, status, x0, z0, cell, ncx, ncz, cell_start, cell_idx):
         cz = int(math.floor((pz[i] - z0) / cell))
         cx = min(max(cx, 0), ncx - 1)
         cz = min(max(cz, 0), ncz - 1)
-        c = cz * ncx + cx
-        cid[i] = c
-        cell_start[c + 1] += 1
+        cid[i] = cz * ncx + cx
+    sort_into_cells(cid, ncx * ncz, cell_start, cell_idx)
+
+
+@njit(cache=True)
+def sort_into_cells(cid, ncell, cell_start, cell_idx):
+    """Counting sort by cell: particle ``i`` in cell ``cid[i]`` (``-1``: not in the box)
+    goes to ``cell_idx[cell_start[c]:cell_start[c + 1]]``, in particle order. Shared by
+    the 2D, 3D and hopper/cylinder cell lists, which differ only in how they number cells."""
+    for c in range(ncell + 1):
+        cell_start[c] = 0
+    for i in range(cid.size):
+        if cid[i] >= 0:
+            cell_start[cid[i] + 1] += 1
     for c in range(ncell):
         cell_start[c + 1] += cell_start[c]
     fill = cell_start[:ncell].copy()
-    for i in range(n):
+    for i in range(cid.size):
         c = cid[i]
         if c >= 0:
             cell_idx[fill[c]] = i
